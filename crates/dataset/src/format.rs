@@ -1,0 +1,181 @@
+//! The dataset folder format.
+//!
+//! ```text
+//! DIR/generator.json        generator parameters and sensor (a resumed run must match them)
+//! DIR/samples/NNNNNN.json   one record per finished sample: its scene, split and statistics
+//! DIR/depth/NNNNNN.png      depth, 16-bit grey PNG in micrometres, on the sensor's crop
+//! DIR/depth_u8/NNNNNN.png   optional: the paper's 8-bit encoding (0..255 = 0..max depth)
+//! DIR/manifest.json         written last: sensor, parameters, every sample record, summary
+//! ```
+//!
+//! A sample's record is written after its images, each atomically, so a record on disk means
+//! a complete sample: that is what makes generation resumable.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use sensor::{DepthMap, Sensor};
+
+use crate::kit::Split;
+use crate::raycast::CastStats;
+use crate::scene::SceneDescription;
+
+pub const DATASET_FORMAT_VERSION: u32 = 1;
+
+/// Depth above which a pixel counts as in contact (mm). Well above the PNG's 1 um step and the
+/// ray caster's error, well below the 0.11 mm uncertainty of 3D-printed ground truth.
+pub const CONTACT_THRESHOLD_MM: f32 = 0.02;
+
+/// Per-sample depth statistics over the useful pixels.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DepthStats {
+    pub contact_fraction: f32,
+    pub mean_contact_depth_mm: f32,
+    pub max_depth_mm: f32,
+}
+
+impl DepthStats {
+    pub fn of(depth: &DepthMap, mask: &[bool]) -> Self {
+        let (mut useful, mut contact, mut sum, mut max) = (0usize, 0usize, 0f64, 0f32);
+        for (&d, &m) in depth.depth_mm.iter().zip(mask) {
+            if !m {
+                continue;
+            }
+            useful += 1;
+            if d > CONTACT_THRESHOLD_MM {
+                contact += 1;
+                sum += d as f64;
+            }
+            max = max.max(d);
+        }
+        DepthStats {
+            contact_fraction: contact as f32 / useful.max(1) as f32,
+            mean_contact_depth_mm: (sum / contact.max(1) as f64) as f32,
+            max_depth_mm: max,
+        }
+    }
+}
+
+/// What the generator was asked to make.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GeneratorParams {
+    pub seed: u64,
+    pub count: u32,
+    /// "procedural" or the kit folder.
+    pub kit: String,
+    pub z_travel_mm: [f32; 2],
+    pub b_axis_deg: [f32; 2],
+    /// Chance that a sample is drawn from the test trials.
+    pub test_fraction: f32,
+    pub depth_u8: bool,
+}
+
+/// `generator.json`: parameters and the sensor, fixed for the life of a dataset folder.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GeneratorFile {
+    pub format_version: u32,
+    pub sensor: Sensor,
+    pub params: GeneratorParams,
+}
+
+/// One sample's record.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SampleRecord {
+    pub id: u32,
+    pub split: Split,
+    /// The kit index's trial number within the split.
+    pub trial: u32,
+    pub scene: SceneDescription,
+    /// Paths relative to the dataset folder.
+    pub depth: String,
+    pub stats: DepthStats,
+    pub cast: CastStats,
+}
+
+/// Summary of one split.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SplitSummary {
+    pub samples: usize,
+    pub mean_contact_fraction: f32,
+    pub mean_contact_depth_mm: f32,
+    pub max_depth_mm: f32,
+}
+
+impl SplitSummary {
+    pub fn of<'a>(records: impl Iterator<Item = &'a SampleRecord>) -> Self {
+        let mut s = SplitSummary::default();
+        let (mut frac, mut depth, mut with_contact) = (0f64, 0f64, 0usize);
+        for r in records {
+            s.samples += 1;
+            frac += r.stats.contact_fraction as f64;
+            if r.stats.contact_fraction > 0.0 {
+                depth += r.stats.mean_contact_depth_mm as f64;
+                with_contact += 1;
+            }
+            s.max_depth_mm = s.max_depth_mm.max(r.stats.max_depth_mm);
+        }
+        s.mean_contact_fraction = (frac / s.samples.max(1) as f64) as f32;
+        s.mean_contact_depth_mm = (depth / with_contact.max(1) as f64) as f32;
+        s
+    }
+}
+
+/// `manifest.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub format_version: u32,
+    pub sensor: Sensor,
+    pub generator: GeneratorParams,
+    pub samples: Vec<SampleRecord>,
+    pub summary: std::collections::BTreeMap<Split, SplitSummary>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum FormatError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+/// Reads and parses a JSON file, naming the file in every error.
+pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, FormatError> {
+    let text = std::fs::read_to_string(path).map_err(|source| FormatError::Io { path: path.into(), source })?;
+    serde_json::from_str(&text).map_err(|e| FormatError::Invalid { path: path.into(), message: e.to_string() })
+}
+
+/// Writes pretty JSON atomically.
+pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), FormatError> {
+    let text = serde_json::to_string_pretty(value).expect("serialisable");
+    sensor::io::write_atomic(path, text.as_bytes())
+        .map_err(|e| FormatError::Invalid { path: path.into(), message: e.to_string() })
+}
+
+impl Manifest {
+    /// Loads `DIR/manifest.json`, checking its version and that the sample files exist.
+    pub fn load(dir: &Path) -> Result<Manifest, FormatError> {
+        let path = dir.join("manifest.json");
+        let manifest: Manifest = read_json(&path)?;
+        if manifest.format_version > DATASET_FORMAT_VERSION {
+            return Err(FormatError::Invalid {
+                path,
+                message: format!(
+                    "dataset format {} is newer than this program understands ({DATASET_FORMAT_VERSION})",
+                    manifest.format_version
+                ),
+            });
+        }
+        manifest.sensor.validate().map_err(|e| FormatError::Invalid { path: path.clone(), message: e.to_string() })?;
+        for s in &manifest.samples {
+            let file = dir.join(&s.depth);
+            if !file.is_file() {
+                return Err(FormatError::Invalid { path: file, message: format!("sample {} is listed but missing", s.id) });
+            }
+        }
+        Ok(manifest)
+    }
+}
+
+pub fn sample_name(id: u32) -> String {
+    format!("{id:06}")
+}

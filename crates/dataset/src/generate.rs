@@ -1,0 +1,208 @@
+//! The dataset generator: deterministic per sample, parallel, resumable.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use rayon::prelude::*;
+use sensor::Sensor;
+
+use crate::format::{
+    DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, Manifest, SampleRecord, SplitSummary,
+    read_json, sample_name, write_json,
+};
+use crate::kit::{Kit, Split, Trial};
+use crate::progress::Progress;
+use crate::rays::RayBundle;
+use crate::raycast::{RayCaster, Skipping};
+use crate::rng::SplitMix64;
+use crate::scene::{RigPose, Scene};
+
+/// Draws sample `id`'s trial and pose from its own random stream.
+pub fn draw_sample<'k>(kit: &'k Kit, params: &GeneratorParams, id: u32) -> (&'k Trial, RigPose) {
+    let mut rng = SplitMix64::for_item(params.seed, id as u64);
+    let wanted = if rng.unit() < params.test_fraction as f64 { Split::Test } else { Split::Train };
+    let mut trials = kit.trials_in(wanted);
+    if trials.is_empty() {
+        trials = kit.trials.iter().collect();
+    }
+    let trial = trials[rng.below(trials.len())];
+    let [b0, b1] = params.b_axis_deg;
+    let [z0, z1] = params.z_travel_mm;
+    let pose = RigPose { b_axis_deg: rng.range(b0 as f64, b1 as f64) as f32, z_travel_mm: rng.range(z0 as f64, z1 as f64) as f32 };
+    (trial, pose)
+}
+
+/// Builds a trial's scene in the given pose.
+pub fn build_scene(kit: &Kit, trial: &Trial, pose: RigPose) -> Result<Scene> {
+    let indicator = &kit.indicators[trial.indicator];
+    let indenters: Vec<_> = trial.indenters.iter().map(|&(j, a)| (&kit.indenters[j], a)).collect();
+    Scene::assemble(indicator, &indenters, pose).with_context(|| format!("{} trial {}", trial.split.name(), trial.number))
+}
+
+/// Everything a run needs, prepared once.
+pub struct Generator<'a> {
+    pub out: PathBuf,
+    pub sensor: &'a Sensor,
+    pub kit: &'a Kit,
+    pub params: GeneratorParams,
+    pub skipping: Skipping,
+}
+
+/// What a finished run reports.
+pub struct RunReport {
+    pub manifest: Manifest,
+    pub generated: usize,
+    pub resumed: usize,
+    pub seconds: f64,
+}
+
+impl Generator<'_> {
+    /// Generates every missing sample, then writes the manifest. Safe to kill at any moment and
+    /// run again with the same arguments.
+    pub fn run(&self) -> Result<RunReport> {
+        let start = Instant::now();
+        self.prepare_folder()?;
+        let done = self.finished_records()?;
+        let resumed = done.len();
+        let todo: Vec<u32> = (0..self.params.count).filter(|id| !done.contains_key(id)).collect();
+        let rays = RayBundle::new(self.sensor);
+        let mask = self.sensor.valid_mask();
+        let progress = Progress::new("generating", todo.len() as u64);
+        let fresh: Vec<SampleRecord> = todo
+            .par_iter()
+            .map(|&id| {
+                let record = self.make_sample(id, &rays, &mask)?;
+                progress.inc(1);
+                Ok(record)
+            })
+            .collect::<Result<_>>()?;
+        progress.finish();
+        let mut records = done;
+        let generated = fresh.len();
+        records.extend(fresh.into_iter().map(|r| (r.id, r)));
+        let samples: Vec<SampleRecord> = records.into_values().collect();
+        let mut summary = BTreeMap::new();
+        for split in [Split::Train, Split::Test] {
+            summary.insert(split, SplitSummary::of(samples.iter().filter(|s| s.split == split)));
+        }
+        let manifest = Manifest {
+            format_version: DATASET_FORMAT_VERSION,
+            sensor: self.sensor.clone(),
+            generator: self.params.clone(),
+            samples,
+            summary,
+        };
+        write_json(&self.out.join("manifest.json"), &manifest)?;
+        Ok(RunReport { manifest, generated, resumed, seconds: start.elapsed().as_secs_f64() })
+    }
+
+    fn make_sample(&self, id: u32, rays: &RayBundle, mask: &[bool]) -> Result<SampleRecord> {
+        let (trial, pose) = draw_sample(self.kit, &self.params, id);
+        let scene = build_scene(self.kit, trial, pose)?;
+        let caster = RayCaster::new(&scene.part_refs(), self.sensor.radius_mm, self.skipping);
+        let (depth, cast) = caster.depth_map(self.sensor, rays);
+        let name = sample_name(id);
+        let depth_rel = format!("depth/{name}.png");
+        depth.save_png_um(&self.out.join(&depth_rel))?;
+        if self.params.depth_u8 {
+            let bytes = depth.to_png_u8(self.sensor.max_depth_mm as f32);
+            sensor::io::write_atomic(&self.out.join(format!("depth_u8/{name}.png")), &bytes)?;
+        }
+        let record = SampleRecord {
+            id,
+            split: trial.split,
+            trial: trial.number,
+            scene: scene.description,
+            depth: depth_rel,
+            stats: DepthStats::of(&depth, mask),
+            cast,
+        };
+        write_json(&self.out.join(format!("samples/{name}.json")), &record)?;
+        Ok(record)
+    }
+
+    /// Creates the folder, or checks that an existing one was made with the same parameters,
+    /// and removes temporary files left by a killed run.
+    fn prepare_folder(&self) -> Result<()> {
+        for sub in ["samples", "depth", "depth_u8"] {
+            if sub == "depth_u8" && !self.params.depth_u8 {
+                continue;
+            }
+            let dir = self.out.join(sub);
+            std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+            remove_temporaries(&dir)?;
+        }
+        let file = GeneratorFile { format_version: DATASET_FORMAT_VERSION, sensor: self.sensor.clone(), params: self.params.clone() };
+        let path = self.out.join("generator.json");
+        if path.exists() {
+            let existing: GeneratorFile = read_json(&path)?;
+            if existing != file {
+                bail!(
+                    "{}: this folder holds a dataset made with other parameters or another sensor; \
+                     use another --out, or remove the folder to start again",
+                    path.display()
+                );
+            }
+        } else {
+            write_json(&path, &file)?;
+        }
+        Ok(())
+    }
+
+    /// Records of samples finished by an earlier run.
+    fn finished_records(&self) -> Result<BTreeMap<u32, SampleRecord>> {
+        let mut done = BTreeMap::new();
+        for id in 0..self.params.count {
+            let path = self.out.join(format!("samples/{}.json", sample_name(id)));
+            if !path.exists() {
+                continue;
+            }
+            let record: SampleRecord = read_json(&path)?;
+            if record.id != id || !self.out.join(&record.depth).is_file() {
+                bail!("{}: record does not match sample {id} or its depth file is missing", path.display());
+            }
+            done.insert(id, record);
+        }
+        Ok(done)
+    }
+}
+
+fn remove_temporaries(dir: &Path) -> Result<()> {
+    for entry in std::fs::read_dir(dir).with_context(|| format!("{}: cannot list", dir.display()))? {
+        let path = entry?.path();
+        if path.file_name().is_some_and(|n| n.to_string_lossy().ends_with(".tmp")) {
+            std::fs::remove_file(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
+        }
+    }
+    Ok(())
+}
+
+/// Human-readable statistics of a finished run.
+pub fn report_lines(report: &RunReport) -> Vec<String> {
+    let m = &report.manifest;
+    let mut lines = vec![format!(
+        "{} samples ({} new, {} from an earlier run) in {:.1} s: {:.1} samples/s",
+        m.samples.len(),
+        report.generated,
+        report.resumed,
+        report.seconds,
+        report.generated as f64 / report.seconds.max(1e-9)
+    )];
+    for (split, s) in &m.summary {
+        lines.push(format!(
+            "  {:5}: {:6} samples, contact {:5.1}% of useful pixels, mean contact depth {:.3} mm, max depth {:.3} mm",
+            split.name(),
+            s.samples,
+            100.0 * s.mean_contact_fraction,
+            s.mean_contact_depth_mm,
+            s.max_depth_mm
+        ));
+    }
+    let n = m.samples.len().max(1) as f64;
+    let kept: f64 = m.samples.iter().map(|s| s.cast.triangles_kept as f64 / s.cast.triangles_total.max(1) as f64).sum::<f64>() / n;
+    let cast: f64 = m.samples.iter().map(|s| s.cast.rays_cast as f64 / s.cast.rays_total.max(1) as f64).sum::<f64>() / n;
+    lines.push(format!("  skipping: {:.1}% of triangles kept, {:.1}% of rays cast (mean per sample)", 100.0 * kept, 100.0 * cast));
+    lines
+}

@@ -1,0 +1,1 @@
+//! Light inference from an exported bundle (to come: see the project issues).

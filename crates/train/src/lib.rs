@@ -1,0 +1,1 @@
+//! Training, fine-tuning and bundle export (to come: see the project issues).

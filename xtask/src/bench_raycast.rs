@@ -1,0 +1,174 @@
+//! Ray-casting benchmark: the kit scene of test trial 2 (indicator 72 with indenters 37 and 36),
+//! the default sensor's 570x570 crop, our caster with and without skipping, and Open3D's
+//! RaycastingScene (Embree) on the same triangles and rays, all in one run.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use dataset::format::GeneratorParams;
+use dataset::generate::{Generator, build_scene};
+use dataset::{Kit, RayBundle, RayCaster, RigPose, Skipping, Split};
+use sensor::Sensor;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The DenseTact kit folder.
+    #[arg(long, default_value = "../shared/densetact-kit")]
+    kit: PathBuf,
+    /// Repetitions per measurement (the median is reported).
+    #[arg(long, default_value_t = 15)]
+    reps: usize,
+    /// Python interpreter with open3d and numpy for the peer; "none" skips it.
+    #[arg(long, default_value = "python3")]
+    python: String,
+    /// Samples for the generator's throughput.
+    #[arg(long, default_value_t = 200)]
+    samples: u32,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Median seconds of `f` over `reps` runs, after one warm-up.
+fn time<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+    let mut out = f();
+    let mut times = Vec::with_capacity(reps);
+    for _ in 0..reps {
+        let t = Instant::now();
+        out = f();
+        times.push(t.elapsed().as_secs_f64());
+    }
+    (median(times), out)
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let sensor = Sensor::default();
+    let kit = Kit::load_dir(&args.kit).with_context(|| format!("loading {}", args.kit.display()))?;
+    let trial = kit
+        .trials_in(Split::Test)
+        .into_iter()
+        .find(|t| t.number == 2)
+        .context("the kit's test index has no trial 2")?
+        .clone();
+    let pose = RigPose { b_axis_deg: 0.0, z_travel_mm: 1.0 };
+    let scene = build_scene(&kit, &trial, pose)?;
+    let parts = scene.part_refs();
+    let triangles: usize = parts.iter().map(|p| p.triangles.len()).sum();
+    let rays = RayBundle::new(&sensor);
+    let threads = rayon::current_num_threads();
+    println!("scene: {} with {:?}, pose {:?}", scene.description.indicator, scene.description.placements.iter().map(|p| &p.indenter).collect::<Vec<_>>(), pose);
+    println!("{} triangles, {} rays (570x570 crop, useful pixels), {threads} threads, median of {} runs", triangles, rays.len(), args.reps);
+
+    let mut rows = Vec::new();
+    let mut reference = None;
+    for (name, skipping) in [("ours, no skipping", Skipping::Off), ("ours, skipping", Skipping::On)] {
+        let (build_s, caster) = time(args.reps, || RayCaster::new(&parts, sensor.radius_mm, skipping));
+        let (cast_s, (depth, stats)) = time(args.reps, || caster.depth_map(&sensor, &rays));
+        match &reference {
+            None => reference = Some(depth),
+            Some(r) => {
+                if *r != depth {
+                    bail!("skipping changed the depth map");
+                }
+            }
+        }
+        rows.push((name.to_string(), build_s, cast_s, stats.rays_cast, stats.triangles_kept));
+    }
+
+    if args.python != "none" {
+        let dir = std::env::temp_dir().join("densetact-bench");
+        std::fs::create_dir_all(&dir)?;
+        let file = dir.join("raycast_scene.bin");
+        let reference = reference.as_ref().expect("measured above");
+        let ours: Vec<f32> = rays.indices.iter().map(|&i| reference.depth_mm[i as usize]).collect();
+        write_scene(&file, &parts, &rays, &ours)?;
+        let script = concat!(env!("CARGO_MANIFEST_DIR"), "/peers/raycast_open3d.py");
+        let out = Command::new(&args.python)
+            .args([script, file.to_str().unwrap(), &args.reps.to_string(), &threads.to_string()])
+            .output()
+            .with_context(|| format!("running {} {script}", args.python))?;
+        if !out.status.success() {
+            bail!("peer failed: {}", String::from_utf8_lossy(&out.stderr));
+        }
+        let text = String::from_utf8_lossy(&out.stdout);
+        let field = |key: &str| -> Result<f64> {
+            text.split_whitespace()
+                .find_map(|w| w.strip_prefix(key))
+                .context("peer output lacks a field")?
+                .parse()
+                .context("peer output field is not a number")
+        };
+        let (build_s, cast_s, max_err) = (field("build_s=")?, field("cast_s=")?, field("max_abs_depth_diff_mm=")?);
+        rows.push(("Open3D RaycastingScene (Embree)".into(), build_s, cast_s, rays.len(), triangles));
+        println!("Open3D vs ours (no skipping): largest depth difference {max_err:.2e} mm over the useful pixels");
+    }
+
+    println!();
+    println!("| caster | triangles used | rays cast | build ms | cast ms | ms per scene | Mrays/s (all rays / cast time) |");
+    println!("|---|---:|---:|---:|---:|---:|---:|");
+    for (name, build_s, cast_s, cast, kept) in &rows {
+        println!(
+            "| {name} | {kept} | {cast} | {:.2} | {:.2} | {:.2} | {:.1} |",
+            build_s * 1e3,
+            cast_s * 1e3,
+            (build_s + cast_s) * 1e3,
+            rays.len() as f64 / cast_s / 1e6
+        );
+    }
+
+    // Whole generator: procedural kit, depth PNG writes included.
+    let dir = std::env::temp_dir().join(format!("densetact-bench-gen-{}", std::process::id()));
+    let kit = Kit::procedural(sensor.radius_mm as f32);
+    let params = GeneratorParams {
+        seed: 1,
+        count: args.samples,
+        kit: kit.source.clone(),
+        z_travel_mm: [0.0, 2.5],
+        b_axis_deg: [0.0, 360.0],
+        test_fraction: 0.1,
+        depth_u8: false,
+    };
+    let report = Generator { out: dir.clone(), sensor: &sensor, kit: &kit, params, skipping: Skipping::On }.run()?;
+    std::fs::remove_dir_all(&dir).ok();
+    println!();
+    println!(
+        "generator (procedural kit, depth PNGs written): {} samples in {:.2} s = {:.1} samples/s",
+        report.generated,
+        report.seconds,
+        report.generated as f64 / report.seconds
+    );
+    Ok(())
+}
+
+/// Triangles, rays and our depths for the peer: little-endian u32 counts, f32 values.
+fn write_scene(path: &PathBuf, parts: &[&dataset::Mesh], rays: &RayBundle, ours_mm: &[f32]) -> Result<()> {
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let n: usize = parts.iter().map(|p| p.triangles.len()).sum();
+    out.write_all(&(n as u32).to_le_bytes())?;
+    for p in parts {
+        for i in 0..p.triangles.len() {
+            for v in p.triangle(i) {
+                for x in v.to_array() {
+                    out.write_all(&x.to_le_bytes())?;
+                }
+            }
+        }
+    }
+    out.write_all(&(rays.len() as u32).to_le_bytes())?;
+    for d in &rays.dirs {
+        for x in d.to_array() {
+            out.write_all(&x.to_le_bytes())?;
+        }
+    }
+    // Our depth per ray, to check that the peer agrees.
+    for d in ours_mm {
+        out.write_all(&d.to_le_bytes())?;
+    }
+    out.flush()?;
+    Ok(())
+}

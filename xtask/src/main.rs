@@ -1,0 +1,44 @@
+//! Project automation. `cargo xtask bench raycast` measures the ray caster against Open3D's
+//! Embree-based RaycastingScene on the same rays, and the generator's throughput.
+
+mod bench_raycast;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "xtask", about = "DenseTact project automation")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Benchmarks (results go to stdout; copy them into BENCHMARKS.md with the command).
+    Bench {
+        #[command(subcommand)]
+        what: Bench,
+    },
+}
+
+#[derive(Subcommand)]
+enum Bench {
+    /// Ray-cast ground truth: rays/s and ms per scene, with and without skipping, vs Open3D.
+    Raycast(bench_raycast::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Bench { what: Bench::Raycast(args) } => bench_raycast::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
