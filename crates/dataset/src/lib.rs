@@ -18,4 +18,5 @@ pub use kit::{Kit, Split, Trial};
 pub use mesh::{LoadOptions, Mesh, UpAxis};
 pub use rays::RayBundle;
 pub use raycast::{CastStats, RayCaster, Skipping};
+pub use rays::Cone;
 pub use scene::{Indenter, Indicator, RigPose, Scene, SceneDescription};
