@@ -1,6 +1,9 @@
 //! Ground truth for DenseTact sensors: meshes, kits, scenes posed like the paper's rig, and
 //! depth maps ray-cast through the sensor's fisheye correspondence.
 
+// `!(x > 0.0)` is used on purpose: unlike `x <= 0.0` it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod format;
 pub mod generate;
 pub mod holes;
@@ -8,15 +11,15 @@ pub mod kit;
 pub mod mesh;
 pub mod procedural;
 pub mod progress;
-pub mod rays;
 pub mod raycast;
+pub mod rays;
 pub mod rng;
 pub mod scene;
 pub mod shapes;
 
 pub use kit::{Kit, Split, Trial};
 pub use mesh::{LoadOptions, Mesh, UpAxis};
-pub use rays::RayBundle;
 pub use raycast::{CastStats, RayCaster, Skipping};
 pub use rays::Cone;
+pub use rays::RayBundle;
 pub use scene::{Indenter, Indicator, RigPose, Scene, SceneDescription};

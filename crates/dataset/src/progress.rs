@@ -28,7 +28,14 @@ impl Progress {
             bar.set_message(label.to_string());
             bar
         });
-        Progress { bar, label: label.into(), total, done: AtomicU64::new(0), start: Instant::now(), last_line: Mutex::new(Instant::now()) }
+        Progress {
+            bar,
+            label: label.into(),
+            total,
+            done: AtomicU64::new(0),
+            start: Instant::now(),
+            last_line: Mutex::new(Instant::now()),
+        }
     }
 
     pub fn inc(&self, n: u64) {
@@ -43,7 +50,10 @@ impl Progress {
             let secs = self.start.elapsed().as_secs_f64();
             let rate = done as f64 / secs.max(1e-9);
             let eta = (self.total - done.min(self.total)) as f64 / rate.max(1e-9);
-            eprintln!("{}: {done}/{} ({rate:.1}/s, ETA {eta:.0} s)", self.label, self.total);
+            eprintln!(
+                "{}: {done}/{} ({rate:.1}/s, ETA {eta:.0} s)",
+                self.label, self.total
+            );
         }
     }
 

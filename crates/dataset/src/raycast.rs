@@ -20,12 +20,15 @@
 //! - rays stop at the radius (`tmax = R`): anything farther gives depth 0 anyway.
 
 use glam::{DVec3, Vec3, Vec3A};
-use obvhs::{BvhBuildParams, bvh2::Bvh2, bvh2::builder::build_bvh2_from_tris, ray::Ray, ray::RayHit, triangle::Triangle};
+use obvhs::{
+    BvhBuildParams, bvh2::Bvh2, bvh2::builder::build_bvh2_from_tris, ray::Ray, ray::RayHit,
+    triangle::Triangle,
+};
 use rayon::prelude::*;
 use sensor::{DepthMap, Sensor};
 
 use crate::mesh::Mesh;
-use crate::rays::{Cone, RayBundle};
+use crate::rays::{BallView, Cone, RayBundle};
 
 /// A triangle prepared for rays from the origin.
 #[derive(Clone, Copy, Debug)]
@@ -52,7 +55,11 @@ impl OriginTriangle {
         let [e01, e12, e20] = exact.map(|n| Vec3A::new(n[0] as f32, n[1] as f32, n[2] as f32));
         let norm1 = |e: Vec3A| e.abs().element_sum();
         let largest = norm1(e01).max(norm1(e12)).max(norm1(e20));
-        let (a, b, c) = (Vec3A::from(tri[0]), Vec3A::from(tri[1]), Vec3A::from(tri[2]));
+        let (a, b, c) = (
+            Vec3A::from(tri[0]),
+            Vec3A::from(tri[1]),
+            Vec3A::from(tri[2]),
+        );
         let normal = (b - a).cross(c - a);
         OriginTriangle {
             e01,
@@ -101,7 +108,11 @@ impl OriginTriangle {
 }
 
 fn cross_i64(a: [i64; 3], b: [i64; 3]) -> [i64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 /// Ray directions are snapped to multiples of 2^-24 (exact in f32, at most 6e-8 rad away).
@@ -176,6 +187,8 @@ pub enum Skipping {
 /// Rays of one tile in structure-of-arrays form, so that testing a triangle against all of
 /// them compiles to SIMD arithmetic.
 const LANES: usize = 64;
+/// Lanes tested together: one AVX2 register of f32.
+const GROUP: usize = 8;
 
 struct Lanes {
     x: [f32; LANES],
@@ -189,7 +202,13 @@ struct Lanes {
 impl Lanes {
     fn new(dirs: &[Vec3A], wanted: impl Fn(Vec3A) -> bool, t_max: f32) -> Self {
         assert!(dirs.len() <= LANES && !dirs.is_empty());
-        let mut l = Lanes { x: [dirs[0].x; LANES], y: [dirs[0].y; LANES], z: [dirs[0].z; LANES], best: [-1.0; LANES], wanted: 0 };
+        let mut l = Lanes {
+            x: [dirs[0].x; LANES],
+            y: [dirs[0].y; LANES],
+            z: [dirs[0].z; LANES],
+            best: [-1.0; LANES],
+            wanted: 0,
+        };
         for (i, d) in dirs.iter().enumerate() {
             (l.x[i], l.y[i], l.z[i]) = (d.x, d.y, d.z);
             if wanted(*d) {
@@ -206,24 +225,42 @@ impl Lanes {
         self.best.iter().fold(-1.0f32, |m, &b| m.max(b))
     }
 
-    /// Tests every lane against `tri` with the f32 edge tests; lanes where an edge test is
-    /// within its rounding bound of zero are left alone and reported (true) for the exact pass.
+    /// Tests every lane against `tri` with the f32 edge tests, eight lanes at a time, skipping
+    /// groups whose rays all hit something nearer than `near`. Lanes where an edge test is within
+    /// its rounding bound of zero are left alone and reported (true) for the exact pass.
     #[inline(always)]
-    fn test(&mut self, tri: &OriginTriangle) -> bool {
-        let (a, b, c, n) = (tri.e01, tri.e12, tri.e20, tri.normal);
+    fn test(&mut self, tri: &OriginTriangle, near: f32) -> bool {
+        let [ax, ay, az] = [tri.e01.x, tri.e01.y, tri.e01.z];
+        let [bx, by, bz] = [tri.e12.x, tri.e12.y, tri.e12.z];
+        let [cx, cy, cz] = [tri.e20.x, tri.e20.y, tri.e20.z];
+        let [nx, ny, nz] = [tri.normal.x, tri.normal.y, tri.normal.z];
         let (bound, offset) = (tri.sign_bound, tri.offset);
         let mut ambiguous = 0u32;
-        for i in 0..LANES {
-            let d = Vec3A::new(self.x[i], self.y[i], self.z[i]);
-            let (s0, s1, s2) = (dot3(d, a), dot3(d, b), dot3(d, c));
-            let amb = (s0.abs() <= bound) | (s1.abs() <= bound) | (s2.abs() <= bound);
-            let pos = (s0 >= 0.0) & (s1 >= 0.0) & (s2 >= 0.0);
-            let neg = (s0 <= 0.0) & (s1 <= 0.0) & (s2 <= 0.0);
-            let den = dot3(d, n);
-            let t = offset / den;
-            let hit = (pos | neg) & !amb & (den != 0.0) & (t >= 0.0) & (t <= self.best[i]);
-            self.best[i] = if hit { t } else { self.best[i] };
-            ambiguous |= amb as u32;
+        for g in (0..LANES).step_by(GROUP) {
+            let best = &mut self.best[g..g + GROUP];
+            if best.iter().fold(-1.0f32, |m, &b| m.max(b)) < near {
+                continue;
+            }
+            let (xs, ys, zs) = (
+                &self.x[g..g + GROUP],
+                &self.y[g..g + GROUP],
+                &self.z[g..g + GROUP],
+            );
+            for i in 0..GROUP {
+                let (x, y, z) = (xs[i], ys[i], zs[i]);
+                // Same operand order as `dot3`, so both paths round alike.
+                let s0 = x * ax + y * ay + z * az;
+                let s1 = x * bx + y * by + z * bz;
+                let s2 = x * cx + y * cy + z * cz;
+                let amb = (s0.abs() <= bound) | (s1.abs() <= bound) | (s2.abs() <= bound);
+                let pos = (s0 >= 0.0) & (s1 >= 0.0) & (s2 >= 0.0);
+                let neg = (s0 <= 0.0) & (s1 <= 0.0) & (s2 <= 0.0);
+                let den = x * nx + y * ny + z * nz;
+                let t = offset / den;
+                let hit = (pos | neg) & !amb & (den != 0.0) & (t >= 0.0) & (t <= best[i]);
+                best[i] = if hit { t } else { best[i] };
+                ambiguous |= amb as u32;
+            }
         }
         ambiguous != 0
     }
@@ -234,7 +271,9 @@ impl Lanes {
         for i in 0..LANES {
             let d = Vec3A::new(self.x[i], self.y[i], self.z[i]);
             let bound = tri.sign_bound;
-            let amb = dot3(d, tri.e01).abs() <= bound || dot3(d, tri.e12).abs() <= bound || dot3(d, tri.e20).abs() <= bound;
+            let amb = dot3(d, tri.e01).abs() <= bound
+                || dot3(d, tri.e12).abs() <= bound
+                || dot3(d, tri.e20).abs() <= bound;
             if amb && self.best[i] >= 0.0 {
                 let t = tri.intersect(d, self.best[i]);
                 if t <= self.best[i] {
@@ -251,12 +290,19 @@ fn dot3(a: Vec3A, b: Vec3A) -> f32 {
     a.x * b.x + a.y * b.y + a.z * b.z
 }
 
+/// Buffers reused from block to block by one worker.
+#[derive(Default)]
+struct Scratch {
+    lists: Vec<Vec<(f32, u32)>>,
+    pool: Vec<Vec<u16>>,
+    lanes: Vec<Lanes>,
+}
+
 /// Per-triangle bounds used to gather candidates for a tile.
 #[derive(Clone, Copy, Debug)]
 struct TriangleBounds {
-    /// Bounding ball: centre and radius.
-    centre: Vec3A,
-    radius: f32,
+    /// Bounding ball, as seen from the origin.
+    ball: BallView,
     /// Lower bound on the distance from the origin to any point of the triangle.
     near: f32,
 }
@@ -267,6 +313,8 @@ pub struct RayCaster {
     /// Triangles in BVH primitive order (no indirection in the hot loop).
     triangles: Vec<OriginTriangle>,
     bounds: Vec<TriangleBounds>,
+    /// Bounding balls of the BVH's nodes, as seen from the origin.
+    node_balls: Vec<BallView>,
     cones: Option<Vec<Cone>>,
     radius_mm: f32,
     skipping: Skipping,
@@ -277,7 +325,11 @@ impl RayCaster {
     /// Builds the caster for a scene made of `parts` (sensor frame, mm) and a sensor of `radius_mm`.
     pub fn new(parts: &[&Mesh], radius_mm: f64, skipping: Skipping) -> Self {
         // One grid for the whole scene, whatever is dropped, so skipping cannot move a vertex.
-        let max_abs = parts.iter().flat_map(|p| &p.vertices).map(|v| v.abs().max_element()).fold(0.0, f32::max);
+        let max_abs = parts
+            .iter()
+            .flat_map(|p| &p.vertices)
+            .map(|v| v.abs().max_element())
+            .fold(0.0, f32::max);
         let scale = grid_scale(max_abs);
         let snap = |v: Vec3| (v * scale).round() / scale;
         let mut kept: Vec<([Vec3; 3], f64)> = Vec::new();
@@ -286,14 +338,22 @@ impl RayCaster {
         for part in parts {
             triangles_total += part.triangles.len();
             let start = kept.len();
-            kept.par_extend((0..part.triangles.len()).into_par_iter().with_min_len(1024).filter_map(|i| {
-                let tri = part.triangle(i).map(snap);
-                let near = origin_distance(tri.map(Vec3::as_dvec3));
-                // Keep a 1 nm margin: dropping must be certain, keeping too much is harmless.
-                (skipping == Skipping::Off || near <= radius_mm + 1e-6).then_some((tri, near))
-            }));
+            kept.par_extend(
+                (0..part.triangles.len())
+                    .into_par_iter()
+                    .with_min_len(1024)
+                    .filter_map(|i| {
+                        let tri = part.triangle(i).map(snap);
+                        let near = origin_distance(tri.map(Vec3::as_dvec3));
+                        // Keep a 1 nm margin: dropping must be certain, keeping too much is harmless.
+                        (skipping == Skipping::Off || near <= radius_mm + 1e-6)
+                            .then_some((tri, near))
+                    }),
+            );
             if skipping == Skipping::On && kept.len() > start {
-                let cone = Cone::around_directions(kept[start..].iter().flat_map(|k| k.0).map(Vec3A::from));
+                let cone = Cone::around_directions(
+                    kept[start..].iter().flat_map(|k| k.0).map(Vec3A::from),
+                );
                 match (cone, cones.as_mut()) {
                     (Some(c), Some(list)) => list.push(c),
                     _ => cones = None,
@@ -303,12 +363,22 @@ impl RayCaster {
         if skipping == Skipping::Off {
             cones = None;
         }
-        let tris: Vec<Triangle> =
-            kept.iter().map(|(t, _)| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() }).collect();
+        let tris: Vec<Triangle> = kept
+            .iter()
+            .map(|(t, _)| Triangle {
+                v0: t[0].into(),
+                v1: t[1].into(),
+                v2: t[2].into(),
+            })
+            .collect();
         let mut bvh = if tris.is_empty() {
             Bvh2::default()
         } else {
-            build_bvh2_from_tris(&tris, BvhBuildParams::fastest_build(), &mut Default::default())
+            build_bvh2_from_tris(
+                &tris,
+                BvhBuildParams::fastest_build(),
+                &mut Default::default(),
+            )
         };
         // Pad the boxes: a ray lying exactly in a box's face plane (an axis-aligned ray through
         // an edge on the axis) must not be rejected by the slab test's rounding.
@@ -318,19 +388,49 @@ impl RayCaster {
             node.aabb.max += pad;
         }
         let order: Vec<usize> = bvh.primitive_indices.iter().map(|&i| i as usize).collect();
-        let triangles = order.par_iter().with_min_len(1024).map(|&i| OriginTriangle::new(kept[i].0, scale)).collect();
+        let triangles = order
+            .par_iter()
+            .with_min_len(1024)
+            .map(|&i| OriginTriangle::new(kept[i].0, scale))
+            .collect();
         let bounds = order
             .par_iter()
             .with_min_len(1024)
             .map(|&i| {
                 let [a, b, c] = kept[i].0.map(Vec3A::from);
                 let centre = (a + b + c) / 3.0;
-                let radius = centre.distance(a).max(centre.distance(b)).max(centre.distance(c)) * 1.0001 + 1e-6;
+                let radius = centre
+                    .distance(a)
+                    .max(centre.distance(b))
+                    .max(centre.distance(c))
+                    * 1.0001
+                    + 1e-6;
                 // Rounded down so that the early exit stays conservative.
-                TriangleBounds { centre, radius, near: (kept[i].1 * (1.0 - 1e-6)) as f32 }
+                TriangleBounds {
+                    ball: BallView::new(centre, radius),
+                    near: (kept[i].1 * (1.0 - 1e-6)) as f32,
+                }
             })
             .collect();
-        RayCaster { bvh, triangles, bounds, cones, radius_mm: radius_mm as f32, skipping, triangles_total }
+        let node_balls = bvh
+            .nodes
+            .par_iter()
+            .with_min_len(1024)
+            .map(|node| {
+                let (lo, hi) = (node.aabb.min, node.aabb.max);
+                BallView::new((lo + hi) * 0.5, (hi - lo).length() * 0.5)
+            })
+            .collect();
+        RayCaster {
+            bvh,
+            triangles,
+            bounds,
+            node_balls,
+            cones,
+            radius_mm: radius_mm as f32,
+            skipping,
+            triangles_total,
+        }
     }
 
     pub fn triangles_kept(&self) -> usize {
@@ -338,11 +438,15 @@ impl RayCaster {
     }
 
     fn t_max(&self) -> f32 {
-        if self.skipping == Skipping::On { self.radius_mm } else { f32::INFINITY }
+        if self.skipping == Skipping::On {
+            self.radius_mm
+        } else {
+            f32::INFINITY
+        }
     }
 
-    /// Distance to the first hit along unit direction `dir`, or infinity: one ray through the
-    /// BVH on its own (the reference for the tiled path, and for single queries).
+    /// Distance to the first hit along unit direction `dir`, or infinity (none, or none within
+    /// reach): one ray through the BVH on its own, the reference for the tiled path.
     pub fn first_hit(&self, dir: Vec3A) -> f32 {
         if self.triangles.is_empty() {
             return f32::INFINITY;
@@ -351,8 +455,13 @@ impl RayCaster {
         let ray = Ray::new(Vec3A::ZERO, dir, 0.0, self.t_max());
         let mut hit = RayHit::none();
         let tris = &self.triangles;
-        self.bvh.ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(dir, r.tmax));
-        hit.t
+        self.bvh
+            .ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(dir, r.tmax));
+        if hit.t < self.t_max() {
+            hit.t
+        } else {
+            f32::INFINITY
+        }
     }
 
     fn wanted(&self, dir: Vec3A) -> bool {
@@ -362,101 +471,159 @@ impl RayCaster {
         }
     }
 
-    /// Candidate triangles for a tile's cone, nearest first.
-    fn gather(&self, cone: &Cone, out: &mut Vec<(f32, u32)>) {
-        out.clear();
-        if self.triangles.is_empty() {
-            return;
-        }
-        let mut stack = vec![0u32];
-        while let Some(index) = stack.pop() {
-            let node = &self.bvh.nodes[index as usize];
-            let (lo, hi) = (node.aabb.min, node.aabb.max);
-            if !cone.may_meet_ball((lo + hi) * 0.5, (hi - lo).length() * 0.5 * 1.0001 + 1e-6) {
-                continue;
-            }
-            if node.prim_count == 0 {
-                stack.push(node.first_index);
-                stack.push(node.first_index + 1);
-                continue;
-            }
-            for t in node.first_index..node.first_index + node.prim_count {
-                let b = &self.bounds[t as usize];
-                if cone.may_meet_ball(b.centre, b.radius) {
-                    out.push((b.near, t));
+    /// Walks the BVH once for a block of tiles: each node is tested against the cones of the
+    /// tiles that reached its parent, and each leaf's triangles are handed to the tiles whose
+    /// cones may meet them. `lists[k]` receives tile `k`'s candidates.
+    fn gather(
+        &self,
+        node: usize,
+        active: &[u16],
+        cones: &[&Cone],
+        lists: &mut [Vec<(f32, u32)>],
+        pool: &mut Vec<Vec<u16>>,
+    ) {
+        let ball = &self.node_balls[node];
+        let mut survivors = pool.pop().unwrap_or_default();
+        survivors.clear();
+        survivors.extend(
+            active
+                .iter()
+                .copied()
+                .filter(|&k| cones[k as usize].may_meet(ball)),
+        );
+        if !survivors.is_empty() {
+            let n = &self.bvh.nodes[node];
+            if n.prim_count == 0 {
+                self.gather(n.first_index as usize, &survivors, cones, lists, pool);
+                self.gather(n.first_index as usize + 1, &survivors, cones, lists, pool);
+            } else {
+                for t in n.first_index..n.first_index + n.prim_count {
+                    let b = &self.bounds[t as usize];
+                    for &k in &survivors {
+                        if cones[k as usize].may_meet(&b.ball) {
+                            lists[k as usize].push((b.near, t));
+                        }
+                    }
                 }
             }
         }
-        out.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        pool.push(survivors);
     }
 
-    /// First hits of one tile's rays; returns how many rays were cast. Uses 8-wide AVX2 where
-    /// the CPU has it (same arithmetic, so the same result bit for bit).
-    fn cast_tile(&self, cone: &Cone, dirs: &[Vec3A], hits: &mut [f32], scratch: &mut Vec<(f32, u32)>) -> usize {
+    /// Casts a block of tiles (ranges into `rays`); returns how many rays were cast. Uses 8-wide
+    /// AVX2 where the CPU has it (same arithmetic, so the same result bit for bit).
+    fn cast_block(
+        &self,
+        rays: &RayBundle,
+        tiles: &[(std::ops::Range<usize>, Cone)],
+        hits: &mut [f32],
+        scratch: &mut Scratch,
+    ) -> usize {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2, checked just above.
-            return unsafe { self.cast_tile_avx2(cone, dirs, hits, scratch) };
+            return unsafe { self.cast_block_avx2(rays, tiles, hits, scratch) };
         }
-        self.cast_tile_portable(cone, dirs, hits, scratch)
+        self.cast_block_portable(rays, tiles, hits, scratch)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn cast_tile_avx2(&self, cone: &Cone, dirs: &[Vec3A], hits: &mut [f32], scratch: &mut Vec<(f32, u32)>) -> usize {
-        self.cast_tile_portable(cone, dirs, hits, scratch)
+    fn cast_block_avx2(
+        &self,
+        rays: &RayBundle,
+        tiles: &[(std::ops::Range<usize>, Cone)],
+        hits: &mut [f32],
+        scratch: &mut Scratch,
+    ) -> usize {
+        self.cast_block_portable(rays, tiles, hits, scratch)
     }
 
     #[inline(always)]
-    fn cast_tile_portable(&self, cone: &Cone, dirs: &[Vec3A], hits: &mut [f32], scratch: &mut Vec<(f32, u32)>) -> usize {
-        if let Some(cones) = &self.cones
-            && !cones.iter().any(|c| c.may_meet_cone(cone))
-        {
-            return 0;
-        }
+    fn cast_block_portable(
+        &self,
+        rays: &RayBundle,
+        tiles: &[(std::ops::Range<usize>, Cone)],
+        hits: &mut [f32],
+        scratch: &mut Scratch,
+    ) -> usize {
         let t_max = self.t_max();
-        let mut lanes = Lanes::new(dirs, |d| self.wanted(d), t_max);
-        if lanes.wanted == 0 {
+        let first = tiles[0].0.start;
+        let Scratch { lists, pool, lanes } = scratch;
+        lists.resize_with(tiles.len(), Vec::new);
+        lanes.clear();
+        let mut active: Vec<u16> = Vec::with_capacity(tiles.len());
+        for (k, (range, cone)) in tiles.iter().enumerate() {
+            lists[k].clear();
+            let reachable = match &self.cones {
+                Some(cones) => cones.iter().any(|c| c.may_meet_cone(cone)),
+                None => true,
+            };
+            let l = Lanes::new(
+                &rays.dirs[range.clone()],
+                |d| reachable && self.wanted(d),
+                t_max,
+            );
+            if l.wanted > 0 {
+                active.push(k as u16);
+            }
+            lanes.push(l);
+        }
+        if active.is_empty() || self.triangles.is_empty() {
             return 0;
         }
-        self.gather(cone, scratch);
-        let mut reach = t_max;
-        for &(near, t) in scratch.iter() {
-            // Candidates come nearest first: once one starts beyond every ray's nearest hit,
-            // so do all the rest.
-            if near > reach {
-                break;
+        let cones: Vec<&Cone> = tiles.iter().map(|t| &t.1).collect();
+        self.gather(0, &active, &cones, lists, pool);
+        let mut cast = 0;
+        for &k in &active {
+            let (list, l) = (&mut lists[k as usize], &mut lanes[k as usize]);
+            list.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+            let mut reach = t_max;
+            for &(near, t) in list.iter() {
+                // Candidates come nearest first: once one starts beyond every ray's nearest hit,
+                // so do all the rest.
+                if near > reach {
+                    break;
+                }
+                let tri = &self.triangles[t as usize];
+                if l.test(tri, near) {
+                    l.test_ambiguous(tri);
+                }
+                reach = l.reach();
             }
-            let tri = &self.triangles[t as usize];
-            if lanes.test(tri) {
-                lanes.test_ambiguous(tri);
+            let range = &tiles[k as usize].0;
+            for (hit, &best) in hits[range.start - first..range.end - first]
+                .iter_mut()
+                .zip(&l.best)
+            {
+                if best >= 0.0 && best < t_max {
+                    *hit = best;
+                }
             }
-            reach = lanes.reach();
+            cast += l.wanted;
         }
-        for (hit, &best) in hits.iter_mut().zip(&lanes.best) {
-            if best >= 0.0 && best < t_max {
-                *hit = best;
-            }
-        }
-        lanes.wanted
+        cast
     }
 
     /// First-hit distance of every ray of the bundle (infinity for none within reach), and how
     /// many rays were actually traversed.
     pub fn first_hits(&self, rays: &RayBundle) -> (Vec<f32>, usize) {
         let mut hits = vec![f32::INFINITY; rays.len()];
-        // Tiles are contiguous ranges of rays: hand each worker whole tiles.
-        let mut work: Vec<(&(std::ops::Range<usize>, Cone), &mut [f32])> = Vec::with_capacity(rays.tiles.len());
+        // Blocks are contiguous ranges of rays: hand each worker whole blocks.
+        let mut work = Vec::with_capacity(rays.blocks.len());
         let mut rest = hits.as_mut_slice();
-        for tile in &rays.tiles {
-            let (head, tail) = rest.split_at_mut(tile.0.len());
-            work.push((tile, head));
+        for block in &rays.blocks {
+            let tiles = &rays.tiles[block.clone()];
+            let len = tiles.last().unwrap().0.end - tiles[0].0.start;
+            let (head, tail) = rest.split_at_mut(len);
+            work.push((tiles, head));
             rest = tail;
         }
         let cast: usize = work
             .into_par_iter()
-            .with_min_len(16)
-            .map_init(Vec::new, |scratch, ((range, cone), out)| self.cast_tile(cone, &rays.dirs[range.clone()], out, scratch))
+            .map_init(Scratch::default, |scratch, (tiles, out)| {
+                self.cast_block(rays, tiles, out, scratch)
+            })
             .sum();
         (hits, cast)
     }
@@ -494,7 +661,9 @@ mod tests {
     fn rng_dirs(n: usize, seed: u64) -> Vec<Vec3A> {
         let mut s = seed;
         let mut next = move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
         };
         let mut out = Vec::with_capacity(n);
@@ -510,9 +679,21 @@ mod tests {
     #[test]
     fn closest_distance_matches_brute_force() {
         let tris = [
-            [DVec3::new(1.0, 1.0, 5.0), DVec3::new(-1.0, 1.0, 5.0), DVec3::new(0.0, -1.0, 5.0)],
-            [DVec3::new(3.0, 0.0, 0.0), DVec3::new(4.0, 1.0, 0.0), DVec3::new(4.0, -1.0, 2.0)],
-            [DVec3::new(-2.0, 3.0, 1.0), DVec3::new(2.0, 3.0, 1.0), DVec3::new(0.0, 3.0, 4.0)],
+            [
+                DVec3::new(1.0, 1.0, 5.0),
+                DVec3::new(-1.0, 1.0, 5.0),
+                DVec3::new(0.0, -1.0, 5.0),
+            ],
+            [
+                DVec3::new(3.0, 0.0, 0.0),
+                DVec3::new(4.0, 1.0, 0.0),
+                DVec3::new(4.0, -1.0, 2.0),
+            ],
+            [
+                DVec3::new(-2.0, 3.0, 1.0),
+                DVec3::new(2.0, 3.0, 1.0),
+                DVec3::new(0.0, 3.0, 4.0),
+            ],
         ];
         for t in tris {
             let mut best = f64::INFINITY;
@@ -534,16 +715,27 @@ mod tests {
         let meshes = [
             (shapes::sphere(10.0, 64), 4.0),
             (shapes::box_mesh(Vec3::new(8.0, 9.0, 10.0)), 4.0),
-            (shapes::cylinder(6.0, 12.0, 48).transformed(&Affine3A::from_translation(Vec3::new(0.0, 0.0, -6.0))), 4.0),
+            (
+                shapes::cylinder(6.0, 12.0, 48)
+                    .transformed(&Affine3A::from_translation(Vec3::new(0.0, 0.0, -6.0))),
+                4.0,
+            ),
             (shapes::shell_cap(25.75, 26.75, 3.1, &[], 40, 80), 3.09),
         ];
         for (mesh, theta_max) in &meshes {
             let caster = RayCaster::new(&[mesh], 1000.0, Skipping::Off);
             // Aim rays straight at vertices too: the hardest case for leaks.
             let mut dirs = rng_dirs(100_000, 7);
-            dirs.extend(mesh.vertices.iter().filter_map(|v| Vec3A::from(*v).try_normalize()));
+            dirs.extend(
+                mesh.vertices
+                    .iter()
+                    .filter_map(|v| Vec3A::from(*v).try_normalize()),
+            );
             dirs.retain(|d| d.z.clamp(-1.0, 1.0).acos() < *theta_max);
-            let leaks = dirs.iter().filter(|&&d| !caster.first_hit(d).is_finite()).count();
+            let leaks = dirs
+                .iter()
+                .filter(|&&d| !caster.first_hit(d).is_finite())
+                .count();
             assert_eq!(leaks, 0, "{leaks} of {} rays leaked", dirs.len());
         }
     }
@@ -554,7 +746,8 @@ mod tests {
         let sensor = sensor::Sensor::default();
         let rays = RayBundle::new(&sensor);
         let meshes = [
-            shapes::sphere(10.0, 64).transformed(&Affine3A::from_translation(Vec3::new(0.5, -0.3, 0.2))),
+            shapes::sphere(10.0, 64)
+                .transformed(&Affine3A::from_translation(Vec3::new(0.5, -0.3, 0.2))),
             shapes::box_mesh(Vec3::new(8.0, 9.0, 10.0)),
             shapes::shell_cap(25.75, 26.75, 3.1, &[], 40, 80),
         ];
@@ -575,8 +768,10 @@ mod tests {
         for d in rng_dirs(1000, 3) {
             let t = caster.first_hit(d);
             // The tessellated sphere lies inside the true one by at most the chord sagitta.
-            assert!(t <= 10.0 + 1e-5 && t > 10.0 * (std::f32::consts::PI / 128.0).cos() - 1e-4, "{t}");
+            assert!(
+                t <= 10.0 + 1e-5 && t > 10.0 * (std::f32::consts::PI / 128.0).cos() - 1e-4,
+                "{t}"
+            );
         }
     }
-
 }
