@@ -48,18 +48,14 @@ fn time<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
 
 pub fn run(args: Args) -> Result<()> {
     let sensor = Sensor::default();
-    let kit =
-        Kit::load_dir(&args.kit).with_context(|| format!("loading {}", args.kit.display()))?;
+    let kit = Kit::load_dir(&args.kit).with_context(|| format!("loading {}", args.kit.display()))?;
     let trial = kit
         .trials_in(Split::Test)
         .into_iter()
         .find(|t| t.number == 2)
         .context("the kit's test index has no trial 2")?
         .clone();
-    let pose = RigPose {
-        b_axis_deg: 0.0,
-        z_travel_mm: 1.0,
-    };
+    let pose = RigPose { b_axis_deg: 0.0, z_travel_mm: 1.0 };
     let scene = build_scene(&kit, &trial, pose)?;
     let parts = scene.part_refs();
     let triangles: usize = parts.iter().map(|p| p.triangles.len()).sum();
@@ -68,12 +64,7 @@ pub fn run(args: Args) -> Result<()> {
     println!(
         "scene: {} with {:?}, pose {:?}",
         scene.description.indicator,
-        scene
-            .description
-            .placements
-            .iter()
-            .map(|p| &p.indenter)
-            .collect::<Vec<_>>(),
+        scene.description.placements.iter().map(|p| &p.indenter).collect::<Vec<_>>(),
         pose
     );
     println!(
@@ -85,13 +76,8 @@ pub fn run(args: Args) -> Result<()> {
 
     let mut rows = Vec::new();
     let mut reference = None;
-    for (name, skipping) in [
-        ("ours, no skipping", Skipping::Off),
-        ("ours, skipping", Skipping::On),
-    ] {
-        let (build_s, caster) = time(args.reps, || {
-            RayCaster::new(&parts, sensor.radius_mm, skipping)
-        });
+    for (name, skipping) in [("ours, no skipping", Skipping::Off), ("ours, skipping", Skipping::On)] {
+        let (build_s, caster) = time(args.reps, || RayCaster::new(&parts, sensor.radius_mm, skipping));
         let (cast_s, (depth, stats)) = time(args.reps, || caster.depth_map(&sensor, &rays));
         match &reference {
             None => reference = Some(depth),
@@ -101,13 +87,7 @@ pub fn run(args: Args) -> Result<()> {
                 }
             }
         }
-        rows.push((
-            name.to_string(),
-            build_s,
-            cast_s,
-            stats.rays_cast,
-            stats.triangles_kept,
-        ));
+        rows.push((name.to_string(), build_s, cast_s, stats.rays_cast, stats.triangles_kept));
     }
 
     if args.python != "none" {
@@ -115,20 +95,11 @@ pub fn run(args: Args) -> Result<()> {
         std::fs::create_dir_all(&dir)?;
         let file = dir.join("raycast_scene.bin");
         let reference = reference.as_ref().expect("measured above");
-        let ours: Vec<f32> = rays
-            .indices
-            .iter()
-            .map(|&i| reference.depth_mm[i as usize])
-            .collect();
+        let ours: Vec<f32> = rays.indices.iter().map(|&i| reference.depth_mm[i as usize]).collect();
         write_scene(&file, &parts, &rays, &ours)?;
         let script = concat!(env!("CARGO_MANIFEST_DIR"), "/peers/raycast_open3d.py");
         let out = Command::new(&args.python)
-            .args([
-                script,
-                file.to_str().unwrap(),
-                &args.reps.to_string(),
-                &threads.to_string(),
-            ])
+            .args([script, file.to_str().unwrap(), &args.reps.to_string(), &threads.to_string()])
             .output()
             .with_context(|| format!("running {} {script}", args.python))?;
         if !out.status.success() {
@@ -142,21 +113,9 @@ pub fn run(args: Args) -> Result<()> {
                 .parse()
                 .context("peer output field is not a number")
         };
-        let (build_s, cast_s, max_err) = (
-            field("build_s=")?,
-            field("cast_s=")?,
-            field("max_abs_depth_diff_mm=")?,
-        );
-        rows.push((
-            "Open3D RaycastingScene (Embree)".into(),
-            build_s,
-            cast_s,
-            rays.len(),
-            triangles,
-        ));
-        println!(
-            "Open3D vs ours (no skipping): largest depth difference {max_err:.2e} mm over the useful pixels"
-        );
+        let (build_s, cast_s, max_err) = (field("build_s=")?, field("cast_s=")?, field("max_abs_depth_diff_mm=")?);
+        rows.push(("Open3D RaycastingScene (Embree)".into(), build_s, cast_s, rays.len(), triangles));
+        println!("Open3D vs ours (no skipping): largest depth difference {max_err:.2e} mm over the useful pixels");
     }
 
     println!();
@@ -186,14 +145,7 @@ pub fn run(args: Args) -> Result<()> {
         test_fraction: 0.1,
         depth_u8: false,
     };
-    let report = Generator {
-        out: dir.clone(),
-        sensor: &sensor,
-        kit: &kit,
-        params,
-        skipping: Skipping::On,
-    }
-    .run()?;
+    let report = Generator { out: dir.clone(), sensor: &sensor, kit: &kit, params, skipping: Skipping::On }.run()?;
     std::fs::remove_dir_all(&dir).ok();
     println!();
     println!(
@@ -206,12 +158,7 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 /// Triangles, rays and our depths for the peer: little-endian u32 counts, f32 values.
-fn write_scene(
-    path: &PathBuf,
-    parts: &[&dataset::Mesh],
-    rays: &RayBundle,
-    ours_mm: &[f32],
-) -> Result<()> {
+fn write_scene(path: &PathBuf, parts: &[&dataset::Mesh], rays: &RayBundle, ours_mm: &[f32]) -> Result<()> {
     let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
     let n: usize = parts.iter().map(|p| p.triangles.len()).sum();
     out.write_all(&(n as u32).to_le_bytes())?;

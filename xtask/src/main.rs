@@ -32,9 +32,7 @@ enum Bench {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Bench {
-            what: Bench::Raycast(args),
-        } => bench_raycast::run(args),
+        Command::Bench { what: Bench::Raycast(args) } => bench_raycast::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

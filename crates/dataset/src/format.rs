@@ -133,33 +133,22 @@ pub struct Manifest {
 #[derive(Debug, thiserror::Error)]
 pub enum FormatError {
     #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    Io { path: PathBuf, source: std::io::Error },
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
 }
 
 /// Reads and parses a JSON file, naming the file in every error.
 pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, FormatError> {
-    let text = std::fs::read_to_string(path).map_err(|source| FormatError::Io {
-        path: path.into(),
-        source,
-    })?;
-    serde_json::from_str(&text).map_err(|e| FormatError::Invalid {
-        path: path.into(),
-        message: e.to_string(),
-    })
+    let text = std::fs::read_to_string(path).map_err(|source| FormatError::Io { path: path.into(), source })?;
+    serde_json::from_str(&text).map_err(|e| FormatError::Invalid { path: path.into(), message: e.to_string() })
 }
 
 /// Writes pretty JSON atomically.
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), FormatError> {
     let text = serde_json::to_string_pretty(value).expect("serialisable");
-    sensor::io::write_atomic(path, text.as_bytes()).map_err(|e| FormatError::Invalid {
-        path: path.into(),
-        message: e.to_string(),
-    })
+    sensor::io::write_atomic(path, text.as_bytes())
+        .map_err(|e| FormatError::Invalid { path: path.into(), message: e.to_string() })
 }
 
 impl Manifest {
@@ -176,13 +165,7 @@ impl Manifest {
                 ),
             });
         }
-        manifest
-            .sensor
-            .validate()
-            .map_err(|e| FormatError::Invalid {
-                path: path.clone(),
-                message: e.to_string(),
-            })?;
+        manifest.sensor.validate().map_err(|e| FormatError::Invalid { path: path.clone(), message: e.to_string() })?;
         for s in &manifest.samples {
             let file = dir.join(&s.depth);
             if !file.is_file() {

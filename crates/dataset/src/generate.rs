@@ -9,8 +9,8 @@ use rayon::prelude::*;
 use sensor::Sensor;
 
 use crate::format::{
-    DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, Manifest, SampleRecord,
-    SplitSummary, read_json, sample_name, write_json,
+    DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, Manifest, SampleRecord, SplitSummary,
+    read_json, sample_name, write_json,
 };
 use crate::kit::{Kit, Split, Trial};
 use crate::progress::Progress;
@@ -22,11 +22,7 @@ use crate::scene::{RigPose, Scene};
 /// Draws sample `id`'s trial and pose from its own random stream.
 pub fn draw_sample<'k>(kit: &'k Kit, params: &GeneratorParams, id: u32) -> (&'k Trial, RigPose) {
     let mut rng = SplitMix64::for_item(params.seed, id as u64);
-    let wanted = if rng.unit() < params.test_fraction as f64 {
-        Split::Test
-    } else {
-        Split::Train
-    };
+    let wanted = if rng.unit() < params.test_fraction as f64 { Split::Test } else { Split::Train };
     let mut trials = kit.trials_in(wanted);
     if trials.is_empty() {
         trials = kit.trials.iter().collect();
@@ -44,11 +40,7 @@ pub fn draw_sample<'k>(kit: &'k Kit, params: &GeneratorParams, id: u32) -> (&'k 
 /// Builds a trial's scene in the given pose.
 pub fn build_scene(kit: &Kit, trial: &Trial, pose: RigPose) -> Result<Scene> {
     let indicator = &kit.indicators[trial.indicator];
-    let indenters: Vec<_> = trial
-        .indenters
-        .iter()
-        .map(|&(j, a)| (&kit.indenters[j], a))
-        .collect();
+    let indenters: Vec<_> = trial.indenters.iter().map(|&(j, a)| (&kit.indenters[j], a)).collect();
     Scene::assemble(indicator, &indenters, pose)
         .with_context(|| format!("{} trial {}", trial.split.name(), trial.number))
 }
@@ -78,9 +70,7 @@ impl Generator<'_> {
         self.prepare_folder()?;
         let done = self.finished_records()?;
         let resumed = done.len();
-        let todo: Vec<u32> = (0..self.params.count)
-            .filter(|id| !done.contains_key(id))
-            .collect();
+        let todo: Vec<u32> = (0..self.params.count).filter(|id| !done.contains_key(id)).collect();
         let rays = RayBundle::new(self.sensor);
         let mask = self.sensor.valid_mask();
         let progress = Progress::new("generating", todo.len() as u64);
@@ -99,10 +89,7 @@ impl Generator<'_> {
         let samples: Vec<SampleRecord> = records.into_values().collect();
         let mut summary = BTreeMap::new();
         for split in [Split::Train, Split::Test] {
-            summary.insert(
-                split,
-                SplitSummary::of(samples.iter().filter(|s| s.split == split)),
-            );
+            summary.insert(split, SplitSummary::of(samples.iter().filter(|s| s.split == split)));
         }
         let manifest = Manifest {
             format_version: DATASET_FORMAT_VERSION,
@@ -112,12 +99,7 @@ impl Generator<'_> {
             summary,
         };
         write_json(&self.out.join("manifest.json"), &manifest)?;
-        Ok(RunReport {
-            manifest,
-            generated,
-            resumed,
-            seconds: start.elapsed().as_secs_f64(),
-        })
+        Ok(RunReport { manifest, generated, resumed, seconds: start.elapsed().as_secs_f64() })
     }
 
     fn make_sample(&self, id: u32, rays: &RayBundle, mask: &[bool]) -> Result<SampleRecord> {
@@ -153,8 +135,7 @@ impl Generator<'_> {
                 continue;
             }
             let dir = self.out.join(sub);
-            std::fs::create_dir_all(&dir)
-                .with_context(|| format!("{}: cannot create folder", dir.display()))?;
+            std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
             remove_temporaries(&dir)?;
         }
         let file = GeneratorFile {
@@ -188,10 +169,7 @@ impl Generator<'_> {
             }
             let record: SampleRecord = read_json(&path)?;
             if record.id != id || !self.out.join(&record.depth).is_file() {
-                bail!(
-                    "{}: record does not match sample {id} or its depth file is missing",
-                    path.display()
-                );
+                bail!("{}: record does not match sample {id} or its depth file is missing", path.display());
             }
             done.insert(id, record);
         }
@@ -200,16 +178,10 @@ impl Generator<'_> {
 }
 
 fn remove_temporaries(dir: &Path) -> Result<()> {
-    for entry in
-        std::fs::read_dir(dir).with_context(|| format!("{}: cannot list", dir.display()))?
-    {
+    for entry in std::fs::read_dir(dir).with_context(|| format!("{}: cannot list", dir.display()))? {
         let path = entry?.path();
-        if path
-            .file_name()
-            .is_some_and(|n| n.to_string_lossy().ends_with(".tmp"))
-        {
-            std::fs::remove_file(&path)
-                .with_context(|| format!("{}: cannot remove", path.display()))?;
+        if path.file_name().is_some_and(|n| n.to_string_lossy().ends_with(".tmp")) {
+            std::fs::remove_file(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
         }
     }
     Ok(())
@@ -237,18 +209,10 @@ pub fn report_lines(report: &RunReport) -> Vec<String> {
         ));
     }
     let n = m.samples.len().max(1) as f64;
-    let kept: f64 = m
-        .samples
-        .iter()
-        .map(|s| s.cast.triangles_kept as f64 / s.cast.triangles_total.max(1) as f64)
-        .sum::<f64>()
-        / n;
-    let cast: f64 = m
-        .samples
-        .iter()
-        .map(|s| s.cast.rays_cast as f64 / s.cast.rays_total.max(1) as f64)
-        .sum::<f64>()
-        / n;
+    let kept: f64 =
+        m.samples.iter().map(|s| s.cast.triangles_kept as f64 / s.cast.triangles_total.max(1) as f64).sum::<f64>() / n;
+    let cast: f64 =
+        m.samples.iter().map(|s| s.cast.rays_cast as f64 / s.cast.rays_total.max(1) as f64).sum::<f64>() / n;
     lines.push(format!(
         "  skipping: {:.1}% of triangles kept, {:.1}% of rays cast (mean per sample)",
         100.0 * kept,

@@ -47,25 +47,18 @@ pub fn shell_radii(shell: &Mesh) -> Result<ShellRadii, HoleError> {
             continue;
         }
         let area = 0.5 * (b - a).cross(c - a).length() as f64;
-        *bins
-            .entry(((ra + rb + rc) / 3.0 * 20.0).round() as i64)
-            .or_default() += area;
+        *bins.entry(((ra + rb + rc) / 3.0 * 20.0).round() as i64).or_default() += area;
     }
     let mut ranked: Vec<(i64, f64)> = bins.into_iter().collect();
     ranked.sort_by(|x, y| y.1.total_cmp(&x.1));
     let [(r1, a1), (r2, a2)] = match ranked.as_slice() {
         [x, y, ..] => [*x, *y],
         _ => {
-            return Err(HoleError::NotAShell(
-                "fewer than two spherical surfaces".into(),
-            ));
+            return Err(HoleError::NotAShell("fewer than two spherical surfaces".into()));
         }
     };
     if a2 < 0.2 * a1 {
-        return Err(HoleError::NotAShell(format!(
-            "only one large spherical surface (radius {} mm)",
-            r1 as f32 / 20.0
-        )));
+        return Err(HoleError::NotAShell(format!("only one large spherical surface (radius {} mm)", r1 as f32 / 20.0)));
     }
     // Bins are 0.05 mm wide; refine each radius as the mean vertex radius in its bin.
     let refine = |bin: i64| {
@@ -78,10 +71,7 @@ pub fn shell_radii(shell: &Mesh) -> Result<ShellRadii, HoleError> {
         (sum / n.max(1) as f64) as f32
     };
     let (lo, hi) = if r1 < r2 { (r1, r2) } else { (r2, r1) };
-    Ok(ShellRadii {
-        inner_mm: refine(lo),
-        outer_mm: refine(hi),
-    })
+    Ok(ShellRadii { inner_mm: refine(lo), outer_mm: refine(hi) })
 }
 
 /// Finds the shell's holes, ordered from the top (smallest polar angle) down, ties by azimuth.
@@ -118,12 +108,7 @@ pub fn find_holes(shell: &Mesh) -> Result<(ShellRadii, Vec<Hole>), HoleError> {
         holes.push(fit_rim(&cluster));
     }
     holes.sort_by(|a, b| {
-        let key = |h: &Hole| {
-            (
-                (h.axis.z.clamp(-1.0, 1.0).acos().to_degrees()).round(),
-                h.axis.y.atan2(h.axis.x),
-            )
-        };
+        let key = |h: &Hole| ((h.axis.z.clamp(-1.0, 1.0).acos().to_degrees()).round(), h.axis.y.atan2(h.axis.x));
         let (ka, kb) = (key(a), key(b));
         ka.0.total_cmp(&kb.0).then(ka.1.total_cmp(&kb.1))
     });
@@ -170,15 +155,8 @@ fn fit_rim(points: &[DVec3]) -> Hole {
     if axis.dot(mean) < 0.0 {
         axis = -axis;
     }
-    let radius = points
-        .iter()
-        .map(|p| p.reject_from_normalized(axis).length())
-        .sum::<f64>()
-        / n;
-    Hole {
-        axis: axis.as_vec3(),
-        radius_mm: radius as f32,
-    }
+    let radius = points.iter().map(|p| p.reject_from_normalized(axis).length()).sum::<f64>() / n;
+    Hole { axis: axis.as_vec3(), radius_mm: radius as f32 }
 }
 
 /// Eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix (cyclic Jacobi rotations).
@@ -238,32 +216,17 @@ mod tests {
 
     #[test]
     fn recovers_axes_of_a_procedural_shell() {
-        let truth = [
-            DVec3::new(0.0, 0.5, 0.8).normalize(),
-            DVec3::new(-0.6, -0.3, 0.5).normalize(),
-        ];
-        let holes: Vec<ShellHole> = truth
-            .iter()
-            .map(|a| ShellHole {
-                axis: a.as_vec3(),
-                half_angle_rad: 0.14,
-            })
-            .collect();
+        let truth = [DVec3::new(0.0, 0.5, 0.8).normalize(), DVec3::new(-0.6, -0.3, 0.5).normalize()];
+        let holes: Vec<ShellHole> =
+            truth.iter().map(|a| ShellHole { axis: a.as_vec3(), half_angle_rad: 0.14 }).collect();
         let shell = shell_cap(25.75, 26.75, 1.51, &holes, 180, 360);
         let (radii, found) = find_holes(&shell).unwrap();
-        assert!(
-            (radii.inner_mm - 25.75).abs() < 1e-3 && (radii.outer_mm - 26.75).abs() < 1e-3,
-            "{radii:?}"
-        );
+        assert!((radii.inner_mm - 25.75).abs() < 1e-3 && (radii.outer_mm - 26.75).abs() < 1e-3, "{radii:?}");
         assert_eq!(found.len(), 2);
         for (h, t) in found.iter().zip(truth) {
             let err_deg = h.axis.as_dvec3().angle_between(t).to_degrees();
             assert!(err_deg < 0.5, "axis off by {err_deg} degrees");
-            assert!(
-                (h.radius_mm - 25.75 * 0.14f32.sin()).abs() < 0.3,
-                "{}",
-                h.radius_mm
-            );
+            assert!((h.radius_mm - 25.75 * 0.14f32.sin()).abs() < 0.3, "{}", h.radius_mm);
         }
     }
 

@@ -12,19 +12,7 @@ use crate::mesh::{LoadOptions, Mesh, MeshError};
 use crate::procedural::ProceduralKit;
 use crate::scene::{Indenter, Indicator, SceneError};
 
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    PartialEq,
-    Eq,
-    Hash,
-    PartialOrd,
-    Ord,
-    Serialize,
-    Deserialize,
-    clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum Split {
     Train,
@@ -57,11 +45,7 @@ pub enum KitError {
     #[error("{path}: {message}")]
     Layout { path: PathBuf, message: String },
     #[error("{path}: row {row}: {message}")]
-    Index {
-        path: PathBuf,
-        row: usize,
-        message: String,
-    },
+    Index { path: PathBuf, row: usize, message: String },
     #[error(transparent)]
     Mesh(#[from] MeshError),
     #[error("{path}: {source}")]
@@ -81,10 +65,7 @@ impl Kit {
     /// The embedded kit: every indicator with every indenter (and pairs in two-hole shells),
     /// each combination in exactly one split.
     pub fn procedural(radius_mm: f32) -> Kit {
-        let ProceduralKit {
-            indicators,
-            indenters,
-        } = ProceduralKit::new(radius_mm);
+        let ProceduralKit { indicators, indenters } = ProceduralKit::new(radius_mm);
         let mut trials = Vec::new();
         let n = indenters.len();
         // A combination's split is fixed; a pair of indenters joins a split only if both of its
@@ -92,63 +73,38 @@ impl Kit {
         let is_test = |i: usize, j: usize| (i + 2 * j) % 7 == 3;
         let mut numbers = BTreeMap::<Split, u32>::new();
         let mut push = |indicator: usize, list: Vec<(usize, f32)>| {
-            let split = if is_test(indicator, list[0].0) {
-                Split::Test
-            } else {
-                Split::Train
-            };
+            let split = if is_test(indicator, list[0].0) { Split::Test } else { Split::Train };
             let number = numbers.entry(split).or_default();
             *number += 1;
-            trials.push(Trial {
-                split,
-                number: *number,
-                indicator,
-                indenters: list,
-            });
+            trials.push(Trial { split, number: *number, indicator, indenters: list });
         };
         for (i, indicator) in indicators.iter().enumerate() {
             for j in 0..n {
                 let angle = ((i * 37 + j * 53) % 180) as f32;
                 push(i, vec![(j, angle)]);
                 if indicator.holes.len() >= 2 {
-                    let partner = (5..n + 5)
-                        .map(|o| (j + o) % n)
-                        .find(|&k| k != j && is_test(i, k) == is_test(i, j));
+                    let partner = (5..n + 5).map(|o| (j + o) % n).find(|&k| k != j && is_test(i, k) == is_test(i, j));
                     if let Some(k) = partner {
                         push(i, vec![(j, angle), (k, (angle + 90.0) % 180.0)]);
                     }
                 }
             }
         }
-        Kit {
-            source: "procedural".into(),
-            indicators,
-            indenters,
-            trials,
-        }
+        Kit { source: "procedural".into(), indicators, indenters, trials }
     }
 
     /// Loads the authors' kit: `stl/indicators/3Dindicator_verN.STL`, `stl/indenters/indent_verN.STL`,
     /// `Index_training.csv` and `Index_test.csv`. Only the meshes the index uses are loaded.
     pub fn load_dir(dir: &Path) -> Result<Kit, KitError> {
         if !dir.is_dir() {
-            return Err(KitError::Layout {
-                path: dir.into(),
-                message: "kit folder not found".into(),
-            });
+            return Err(KitError::Layout { path: dir.into(), message: "kit folder not found".into() });
         }
         let mut rows = Vec::new();
-        for (split, file) in [
-            (Split::Train, "Index_training.csv"),
-            (Split::Test, "Index_test.csv"),
-        ] {
+        for (split, file) in [(Split::Train, "Index_training.csv"), (Split::Test, "Index_test.csv")] {
             rows.extend(read_index(&dir.join(file), split)?);
         }
         let mut indicator_ids: Vec<u32> = rows.iter().map(|r| r.indicator).collect();
-        let mut indenter_ids: Vec<u32> = rows
-            .iter()
-            .flat_map(|r| r.indenters.iter().map(|x| x.0))
-            .collect();
+        let mut indenter_ids: Vec<u32> = rows.iter().flat_map(|r| r.indenters.iter().map(|x| x.0)).collect();
         indicator_ids.sort_unstable();
         indicator_ids.dedup();
         indenter_ids.sort_unstable();
@@ -159,18 +115,14 @@ impl Kit {
             .map(|&id| {
                 let path = dir.join(format!("stl/indicators/3Dindicator_ver{id}.STL"));
                 let mesh = Mesh::load(&path, opts)?;
-                Indicator::new(format!("indicator-{id}"), mesh)
-                    .map_err(|source| KitError::Scene { path, source })
+                Indicator::new(format!("indicator-{id}"), mesh).map_err(|source| KitError::Scene { path, source })
             })
             .collect::<Result<Vec<_>, _>>()?;
         let indenters = indenter_ids
             .par_iter()
             .map(|&id| {
                 let path = dir.join(format!("stl/indenters/indent_ver{id}.STL"));
-                Ok(Indenter {
-                    name: format!("indenter-{id}"),
-                    mesh: Mesh::load(&path, opts)?,
-                })
+                Ok(Indenter { name: format!("indenter-{id}"), mesh: Mesh::load(&path, opts)? })
             })
             .collect::<Result<Vec<_>, KitError>>()?;
         let trials = rows
@@ -179,19 +131,10 @@ impl Kit {
                 split: r.split,
                 number: r.number,
                 indicator: indicator_ids.binary_search(&r.indicator).unwrap(),
-                indenters: r
-                    .indenters
-                    .iter()
-                    .map(|&(id, a)| (indenter_ids.binary_search(&id).unwrap(), a))
-                    .collect(),
+                indenters: r.indenters.iter().map(|&(id, a)| (indenter_ids.binary_search(&id).unwrap(), a)).collect(),
             })
             .collect();
-        Ok(Kit {
-            source: dir.display().to_string(),
-            indicators,
-            indenters,
-            trials,
-        })
+        Ok(Kit { source: dir.display().to_string(), indicators, indenters, trials })
     }
 
     pub fn trials_in(&self, split: Split) -> Vec<&Trial> {
@@ -201,20 +144,12 @@ impl Kit {
     /// Indicator x indenter combinations that occur in both splits (the paper has none).
     pub fn shared_combinations(&self) -> Vec<(String, String)> {
         let combos = |split| -> std::collections::BTreeSet<(usize, usize)> {
-            self.trials_in(split)
-                .iter()
-                .flat_map(|t| t.indenters.iter().map(move |&(j, _)| (t.indicator, j)))
-                .collect()
+            self.trials_in(split).iter().flat_map(|t| t.indenters.iter().map(move |&(j, _)| (t.indicator, j))).collect()
         };
         let test = combos(Split::Test);
         combos(Split::Train)
             .intersection(&test)
-            .map(|&(i, j)| {
-                (
-                    self.indicators[i].name.clone(),
-                    self.indenters[j].name.clone(),
-                )
-            })
+            .map(|&(i, j)| (self.indicators[i].name.clone(), self.indenters[j].name.clone()))
             .collect()
     }
 }
@@ -228,19 +163,10 @@ struct IndexRow {
 }
 
 fn read_index(path: &Path, split: Split) -> Result<Vec<IndexRow>, KitError> {
-    let err = |row: usize, message: String| KitError::Index {
-        path: path.into(),
-        row,
-        message,
-    };
-    let text = std::fs::read_to_string(path).map_err(|e| KitError::Layout {
-        path: path.into(),
-        message: format!("cannot read the kit's index: {e}"),
-    })?;
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .flexible(true)
-        .from_reader(text.as_bytes());
+    let err = |row: usize, message: String| KitError::Index { path: path.into(), row, message };
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| KitError::Layout { path: path.into(), message: format!("cannot read the kit's index: {e}") })?;
+    let mut reader = csv::ReaderBuilder::new().has_headers(true).flexible(true).from_reader(text.as_bytes());
     let mut rows = Vec::new();
     for (i, record) in reader.records().enumerate() {
         let row = i + 2; // 1-based, after the header line
@@ -250,43 +176,24 @@ fn read_index(path: &Path, split: Split) -> Result<Vec<IndexRow>, KitError> {
             continue;
         }
         let int = |k: usize, what: &str| -> Result<u32, KitError> {
-            field(k).parse().map_err(|_| {
-                err(
-                    row,
-                    format!("{what} must be a whole number, got {:?}", field(k)),
-                )
-            })
+            field(k).parse().map_err(|_| err(row, format!("{what} must be a whole number, got {:?}", field(k))))
         };
         let angle = |k: usize| -> Result<f32, KitError> {
             let a: f32 = if field(k).is_empty() {
                 0.0
             } else {
-                field(k)
-                    .parse()
-                    .map_err(|_| err(row, format!("angle must be a number, got {:?}", field(k))))?
+                field(k).parse().map_err(|_| err(row, format!("angle must be a number, got {:?}", field(k))))?
             };
-            if a.is_finite() {
-                Ok(a)
-            } else {
-                Err(err(row, "angle must be finite".into()))
-            }
+            if a.is_finite() { Ok(a) } else { Err(err(row, "angle must be finite".into())) }
         };
         let mut indenters = vec![(int(2, "first indenter")?, angle(3)?)];
         if !field(4).is_empty() {
             indenters.push((int(4, "second indenter")?, angle(5)?));
         }
-        rows.push(IndexRow {
-            split,
-            number: int(0, "trial number")?,
-            indicator: int(1, "indicator")?,
-            indenters,
-        });
+        rows.push(IndexRow { split, number: int(0, "trial number")?, indicator: int(1, "indicator")?, indenters });
     }
     if rows.is_empty() {
-        return Err(KitError::Layout {
-            path: path.into(),
-            message: "the index lists no trials".into(),
-        });
+        return Err(KitError::Layout { path: path.into(), message: "the index lists no trials".into() });
     }
     Ok(rows)
 }
@@ -299,10 +206,7 @@ mod tests {
     fn procedural_splits_are_disjoint_by_combination() {
         let kit = Kit::procedural(25.0);
         assert!(kit.shared_combinations().is_empty());
-        let (train, test) = (
-            kit.trials_in(Split::Train).len(),
-            kit.trials_in(Split::Test).len(),
-        );
+        let (train, test) = (kit.trials_in(Split::Train).len(), kit.trials_in(Split::Test).len());
         assert!(test > 10 && train > 5 * test, "train {train} test {test}");
         for t in &kit.trials {
             assert!(t.indenters.len() <= kit.indicators[t.indicator].holes.len());
@@ -313,20 +217,10 @@ mod tests {
     fn bad_index_rows_are_named() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("Index_test.csv");
-        std::fs::write(
-            &path,
-            "Trial,Indicator,first,angle,second,angle\n1,72,37,0,,\n2,72,x,0,,\n",
-        )
-        .unwrap();
+        std::fs::write(&path, "Trial,Indicator,first,angle,second,angle\n1,72,37,0,,\n2,72,x,0,,\n").unwrap();
         let e = read_index(&path, Split::Test).err().unwrap().to_string();
-        assert!(
-            e.contains("Index_test.csv") && e.contains("row 3") && e.contains("\"x\""),
-            "{e}"
-        );
-        let e = Kit::load_dir(&dir.path().join("missing"))
-            .err()
-            .unwrap()
-            .to_string();
+        assert!(e.contains("Index_test.csv") && e.contains("row 3") && e.contains("\"x\""), "{e}");
+        let e = Kit::load_dir(&dir.path().join("missing")).err().unwrap().to_string();
         assert!(e.contains("kit folder not found"), "{e}");
     }
 }

@@ -11,11 +11,7 @@ use dataset::{Kit, Skipping};
 use sensor::Sensor;
 
 #[derive(Parser)]
-#[command(
-    name = "dataset",
-    version,
-    about = "Ground truth for DenseTact sensors"
-)]
+#[command(name = "dataset", version, about = "Ground truth for DenseTact sensors")]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -62,26 +58,17 @@ struct GenerateArgs {
 
 fn generate(args: GenerateArgs) -> Result<()> {
     if !(args.z_min_mm.is_finite() && args.z_max_mm.is_finite() && args.z_min_mm <= args.z_max_mm) {
-        bail!(
-            "--z-min-mm ({}) must not exceed --z-max-mm ({})",
-            args.z_min_mm,
-            args.z_max_mm
-        );
+        bail!("--z-min-mm ({}) must not exceed --z-max-mm ({})", args.z_min_mm, args.z_max_mm);
     }
     if !(0.0..=1.0).contains(&args.test_fraction) {
-        bail!(
-            "--test-fraction must be between 0 and 1, got {}",
-            args.test_fraction
-        );
+        bail!("--test-fraction must be between 0 and 1, got {}", args.test_fraction);
     }
     let sensor = match &args.sensor {
         Some(path) => Sensor::load_json(path)?,
         None => Sensor::default(),
     };
     let kit = match &args.kit {
-        Some(dir) => {
-            Kit::load_dir(dir).with_context(|| format!("loading the kit in {}", dir.display()))?
-        }
+        Some(dir) => Kit::load_dir(dir).with_context(|| format!("loading the kit in {}", dir.display()))?,
         None => Kit::procedural(sensor.radius_mm as f32),
     };
     let params = GeneratorParams {
@@ -93,18 +80,8 @@ fn generate(args: GenerateArgs) -> Result<()> {
         test_fraction: args.test_fraction,
         depth_u8: args.depth_u8,
     };
-    let skipping = if args.no_skip {
-        Skipping::Off
-    } else {
-        Skipping::On
-    };
-    let generator = Generator {
-        out: args.out.clone(),
-        sensor: &sensor,
-        kit: &kit,
-        params,
-        skipping,
-    };
+    let skipping = if args.no_skip { Skipping::Off } else { Skipping::On };
+    let generator = Generator { out: args.out.clone(), sensor: &sensor, kit: &kit, params, skipping };
     let report = generator.run()?;
     for line in report_lines(&report) {
         println!("{line}");

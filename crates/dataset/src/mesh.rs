@@ -8,17 +8,7 @@ use glam::{Affine3A, Vec3};
 /// Which axis of a file points "up" (away from the sensor's base, towards the dome's top).
 ///
 /// The sensor frame is Z-up; the DenseTact kit's STL files are Y-up.
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    serde::Serialize,
-    serde::Deserialize,
-    clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum UpAxis {
     /// `y` is the height axis (the kit's convention): `(x, y, z) -> (x, -z, y)`.
@@ -48,10 +38,7 @@ pub struct LoadOptions {
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        LoadOptions {
-            up: UpAxis::Y,
-            scale_to_mm: 1.0,
-        }
+        LoadOptions { up: UpAxis::Y, scale_to_mm: 1.0 }
     }
 }
 
@@ -63,35 +50,19 @@ pub const MAX_EXTENT_MM: f32 = 2000.0;
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
     #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    Io { path: PathBuf, source: std::io::Error },
     #[error(
         "{path}: truncated binary STL: header announces {triangles} triangles ({expected} bytes) but the file has {actual} bytes"
     )]
-    Truncated {
-        path: PathBuf,
-        triangles: u64,
-        expected: u64,
-        actual: u64,
-    },
+    Truncated { path: PathBuf, triangles: u64, expected: u64, actual: u64 },
     #[error("{path}: line {line}: {message}")]
-    Parse {
-        path: PathBuf,
-        line: usize,
-        message: String,
-    },
+    Parse { path: PathBuf, line: usize, message: String },
     #[error("{path}: triangle {triangle} has a non-finite coordinate (NaN or infinity)")]
     NonFinite { path: PathBuf, triangle: usize },
     #[error("{path}: the mesh has no triangles")]
     Empty { path: PathBuf },
     #[error("{path}: the mesh is {extent_mm} mm across: {hint}")]
-    AbsurdSize {
-        path: PathBuf,
-        extent_mm: f32,
-        hint: &'static str,
-    },
+    AbsurdSize { path: PathBuf, extent_mm: f32, hint: &'static str },
     #[error("{path}: unsupported mesh format (expected .stl or .obj)")]
     Format { path: PathBuf },
 }
@@ -113,12 +84,10 @@ impl Mesh {
             let ids = tri.map(|p| {
                 // -0.0 and 0.0 are the same point.
                 let p = p + Vec3::ZERO;
-                *index
-                    .entry(p.to_array().map(f32::to_bits))
-                    .or_insert_with(|| {
-                        mesh.vertices.push(p);
-                        mesh.vertices.len() as u32 - 1
-                    })
+                *index.entry(p.to_array().map(f32::to_bits)).or_insert_with(|| {
+                    mesh.vertices.push(p);
+                    mesh.vertices.len() as u32 - 1
+                })
             });
             mesh.triangles.push(ids);
         }
@@ -127,15 +96,10 @@ impl Mesh {
 
     /// Loads an STL or OBJ file (by extension), converts to the sensor frame and checks it.
     pub fn load(path: &Path, opts: LoadOptions) -> Result<Mesh, MeshError> {
-        let ext = path
-            .extension()
-            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
         let soup = match ext.as_deref() {
             Some("stl") => {
-                let bytes = std::fs::read(path).map_err(|e| MeshError::Io {
-                    path: path.into(),
-                    source: e,
-                })?;
+                let bytes = std::fs::read(path).map_err(|e| MeshError::Io { path: path.into(), source: e })?;
                 parse_stl(path, &bytes)?
             }
             Some("obj") => load_obj(path)?,
@@ -145,51 +109,32 @@ impl Mesh {
     }
 
     /// Checks a triangle soup in file coordinates, then scales, rotates and welds it.
-    pub fn from_checked_soup(
-        path: &Path,
-        soup: Vec<[Vec3; 3]>,
-        opts: LoadOptions,
-    ) -> Result<Mesh, MeshError> {
+    pub fn from_checked_soup(path: &Path, soup: Vec<[Vec3; 3]>, opts: LoadOptions) -> Result<Mesh, MeshError> {
         if soup.is_empty() {
             return Err(MeshError::Empty { path: path.into() });
         }
         if let Some(triangle) = soup.iter().position(|t| t.iter().any(|p| !p.is_finite())) {
-            return Err(MeshError::NonFinite {
-                path: path.into(),
-                triangle,
-            });
+            return Err(MeshError::NonFinite { path: path.into(), triangle });
         }
-        let mesh = Mesh::from_soup(
-            soup.into_iter()
-                .map(|t| t.map(|p| opts.up.to_sensor(p * opts.scale_to_mm))),
-        );
+        let mesh = Mesh::from_soup(soup.into_iter().map(|t| t.map(|p| opts.up.to_sensor(p * opts.scale_to_mm))));
         let (lo, hi) = mesh.bounds();
         let extent_mm = (hi - lo).max_element();
         if extent_mm < MIN_EXTENT_MM {
             let hint = "too small for millimetres; if the file is in metres, scale it by 1000";
-            return Err(MeshError::AbsurdSize {
-                path: path.into(),
-                extent_mm,
-                hint,
-            });
+            return Err(MeshError::AbsurdSize { path: path.into(), extent_mm, hint });
         }
         if extent_mm > MAX_EXTENT_MM {
             let hint = "too large for a fingertip sensor; check the file's units (mm expected)";
-            return Err(MeshError::AbsurdSize {
-                path: path.into(),
-                extent_mm,
-                hint,
-            });
+            return Err(MeshError::AbsurdSize { path: path.into(), extent_mm, hint });
         }
         Ok(mesh)
     }
 
     /// Axis-aligned bounds `(min, max)`.
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        self.vertices.iter().fold(
-            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-            |(lo, hi), &p| (lo.min(p), hi.max(p)),
-        )
+        self.vertices
+            .iter()
+            .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), &p| (lo.min(p), hi.max(p)))
     }
 
     /// Applies a rigid transform in place. Welding is preserved: each vertex moves once.
@@ -209,8 +154,7 @@ impl Mesh {
     pub fn append(&mut self, other: &Mesh) {
         let base = self.vertices.len() as u32;
         self.vertices.extend_from_slice(&other.vertices);
-        self.triangles
-            .extend(other.triangles.iter().map(|t| t.map(|i| i + base)));
+        self.triangles.extend(other.triangles.iter().map(|t| t.map(|i| i + base)));
     }
 
     pub fn triangle(&self, i: usize) -> [Vec3; 3] {
@@ -247,21 +191,13 @@ pub fn parse_stl(path: &Path, bytes: &[u8]) -> Result<Vec<[Vec3; 3]>, MeshError>
         }
         let looks_ascii = bytes.trim_ascii_start().starts_with(b"solid") && bytes.is_ascii();
         if !looks_ascii {
-            return Err(MeshError::Truncated {
-                path: path.into(),
-                triangles: n,
-                expected,
-                actual: bytes.len() as u64,
-            });
+            return Err(MeshError::Truncated { path: path.into(), triangles: n, expected, actual: bytes.len() as u64 });
         }
     } else if !bytes.trim_ascii_start().starts_with(b"solid") {
         let parse = MeshError::Parse {
             path: path.into(),
             line: 1,
-            message: format!(
-                "only {} bytes: neither a binary STL (84-byte header) nor ASCII STL",
-                bytes.len()
-            ),
+            message: format!("only {} bytes: neither a binary STL (84-byte header) nor ASCII STL", bytes.len()),
         };
         return Err(parse);
     }
@@ -273,21 +209,13 @@ fn parse_binary_stl(body: &[u8]) -> Vec<[Vec3; 3]> {
         .map(|rec| {
             let f = |i: usize| f32::from_le_bytes(rec[i * 4..i * 4 + 4].try_into().unwrap());
             // Skip the stored normal (floats 0..3): it is recomputed from the winding.
-            [
-                Vec3::new(f(3), f(4), f(5)),
-                Vec3::new(f(6), f(7), f(8)),
-                Vec3::new(f(9), f(10), f(11)),
-            ]
+            [Vec3::new(f(3), f(4), f(5)), Vec3::new(f(6), f(7), f(8)), Vec3::new(f(9), f(10), f(11))]
         })
         .collect()
 }
 
 fn parse_ascii_stl(path: &Path, text: &str) -> Result<Vec<[Vec3; 3]>, MeshError> {
-    let err = |line: usize, message: String| MeshError::Parse {
-        path: path.into(),
-        line,
-        message,
-    };
+    let err = |line: usize, message: String| MeshError::Parse { path: path.into(), line, message };
     let mut soup = Vec::new();
     let mut current: Vec<Vec3> = Vec::with_capacity(3);
     let mut in_facet = false;
@@ -297,22 +225,14 @@ fn parse_ascii_stl(path: &Path, text: &str) -> Result<Vec<[Vec3; 3]>, MeshError>
             Some("vertex") => {
                 let coords: Vec<&str> = words.collect();
                 if coords.len() != 3 {
-                    return Err(err(
-                        i + 1,
-                        format!("vertex needs 3 coordinates, got {}", coords.len()),
-                    ));
+                    return Err(err(i + 1, format!("vertex needs 3 coordinates, got {}", coords.len())));
                 }
                 let mut p = [0f32; 3];
                 for (k, c) in coords.iter().enumerate() {
-                    p[k] = c
-                        .parse()
-                        .map_err(|_| err(i + 1, format!("not a number: {c:?}")))?;
+                    p[k] = c.parse().map_err(|_| err(i + 1, format!("not a number: {c:?}")))?;
                 }
                 if !in_facet || current.len() == 3 {
-                    return Err(err(
-                        i + 1,
-                        "vertex outside a facet, or more than 3 in one".into(),
-                    ));
+                    return Err(err(i + 1, "vertex outside a facet, or more than 3 in one".into()));
                 }
                 current.push(Vec3::from_array(p));
             }
@@ -322,10 +242,7 @@ fn parse_ascii_stl(path: &Path, text: &str) -> Result<Vec<[Vec3; 3]>, MeshError>
             }
             Some("endfacet") => {
                 if current.len() != 3 {
-                    return Err(err(
-                        i + 1,
-                        format!("facet has {} vertices, expected 3", current.len()),
-                    ));
+                    return Err(err(i + 1, format!("facet has {} vertices, expected 3", current.len())));
                 }
                 soup.push([current[0], current[1], current[2]]);
                 in_facet = false;
@@ -334,20 +251,13 @@ fn parse_ascii_stl(path: &Path, text: &str) -> Result<Vec<[Vec3; 3]>, MeshError>
         }
     }
     if in_facet {
-        return Err(err(
-            text.lines().count(),
-            "file ends inside a facet (truncated?)".into(),
-        ));
+        return Err(err(text.lines().count(), "file ends inside a facet (truncated?)".into()));
     }
     Ok(soup)
 }
 
 fn load_obj(path: &Path) -> Result<Vec<[Vec3; 3]>, MeshError> {
-    let opts = tobj::LoadOptions {
-        triangulate: true,
-        single_index: false,
-        ..Default::default()
-    };
+    let opts = tobj::LoadOptions { triangulate: true, single_index: false, ..Default::default() };
     let (models, _) = tobj::load_obj(path, &opts).map_err(|e| MeshError::Parse {
         path: path.into(),
         line: 0,
@@ -385,9 +295,7 @@ mod tests {
 
     impl Mesh {
         fn triangles_as_soup(&self) -> Vec<[Vec3; 3]> {
-            (0..self.triangles.len())
-                .map(|i| self.triangle(i))
-                .collect()
+            (0..self.triangles.len()).map(|i| self.triangle(i)).collect()
         }
     }
 
@@ -417,60 +325,30 @@ mod tests {
         let e = parse_stl(p, &bytes).unwrap_err().to_string();
         assert!(e.contains("part.stl") && e.contains("truncated"), "{e}");
 
-        let e = parse_stl(
-            p,
-            b"solid x\n facet normal 0 0 1\n outer loop\n vertex 0 0 0\n",
-        )
-        .unwrap_err()
-        .to_string();
+        let e = parse_stl(p, b"solid x\n facet normal 0 0 1\n outer loop\n vertex 0 0 0\n").unwrap_err().to_string();
         assert!(e.contains("part.stl") && e.contains("truncated"), "{e}");
-        let e = parse_stl(p, b"solid x\n facet\n vertex 0 zero 0\n")
-            .unwrap_err()
-            .to_string();
+        let e = parse_stl(p, b"solid x\n facet\n vertex 0 zero 0\n").unwrap_err().to_string();
         assert!(e.contains("line 3") && e.contains("zero"), "{e}");
 
         let mut soup = cube_soup();
         soup[3][1].y = f32::NAN;
-        let e = Mesh::from_checked_soup(p, soup, LoadOptions::default())
-            .unwrap_err()
-            .to_string();
+        let e = Mesh::from_checked_soup(p, soup, LoadOptions::default()).unwrap_err().to_string();
         assert!(e.contains("triangle 3") && e.contains("non-finite"), "{e}");
 
-        let e = Mesh::from_checked_soup(p, vec![], LoadOptions::default())
-            .unwrap_err()
-            .to_string();
+        let e = Mesh::from_checked_soup(p, vec![], LoadOptions::default()).unwrap_err().to_string();
         assert!(e.contains("no triangles"), "{e}");
 
-        let metres: Vec<_> = cube_soup()
-            .into_iter()
-            .map(|t| t.map(|v| v * 0.001))
-            .collect();
-        let e = Mesh::from_checked_soup(p, metres.clone(), LoadOptions::default())
-            .unwrap_err()
-            .to_string();
+        let metres: Vec<_> = cube_soup().into_iter().map(|t| t.map(|v| v * 0.001)).collect();
+        let e = Mesh::from_checked_soup(p, metres.clone(), LoadOptions::default()).unwrap_err().to_string();
         assert!(e.contains("metres"), "{e}");
-        let ok = Mesh::from_checked_soup(
-            p,
-            metres,
-            LoadOptions {
-                scale_to_mm: 1000.0,
-                ..Default::default()
-            },
-        );
+        let ok = Mesh::from_checked_soup(p, metres, LoadOptions { scale_to_mm: 1000.0, ..Default::default() });
         assert!(ok.is_ok());
-        let huge: Vec<_> = cube_soup()
-            .into_iter()
-            .map(|t| t.map(|v| v * 1000.0))
-            .collect();
+        let huge: Vec<_> = cube_soup().into_iter().map(|t| t.map(|v| v * 1000.0)).collect();
         assert!(Mesh::from_checked_soup(p, huge, LoadOptions::default()).is_err());
 
-        let e = Mesh::load(Path::new("/nonexistent/part.stl"), LoadOptions::default())
-            .unwrap_err()
-            .to_string();
+        let e = Mesh::load(Path::new("/nonexistent/part.stl"), LoadOptions::default()).unwrap_err().to_string();
         assert!(e.contains("/nonexistent/part.stl"), "{e}");
-        let e = Mesh::load(Path::new("part.ply"), LoadOptions::default())
-            .unwrap_err()
-            .to_string();
+        let e = Mesh::load(Path::new("part.ply"), LoadOptions::default()).unwrap_err().to_string();
         assert!(e.contains("unsupported"), "{e}");
     }
 
@@ -478,11 +356,7 @@ mod tests {
     fn obj_loads_and_y_up_maps_to_z_up() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("tri.obj");
-        std::fs::write(
-            &path,
-            "v 0 0 0\nv 10 0 0\nv 0 10 0\nv 0 0 10\nf 1 2 3\nf 1 3 4\n",
-        )
-        .unwrap();
+        std::fs::write(&path, "v 0 0 0\nv 10 0 0\nv 0 10 0\nv 0 0 10\nf 1 2 3\nf 1 3 4\n").unwrap();
         let m = Mesh::load(&path, LoadOptions::default()).unwrap();
         assert_eq!(m.triangles.len(), 2);
         // File +y (up) becomes sensor +z; file +z becomes sensor -y.
@@ -490,11 +364,6 @@ mod tests {
         assert!(m.vertices.contains(&Vec3::new(0.0, -10.0, 0.0)));
         let bad = dir.path().join("bad.obj");
         std::fs::write(&bad, "v 0 0 0\nf 1 2 3\n").unwrap();
-        assert!(
-            Mesh::load(&bad, LoadOptions::default())
-                .unwrap_err()
-                .to_string()
-                .contains("bad.obj")
-        );
+        assert!(Mesh::load(&bad, LoadOptions::default()).unwrap_err().to_string().contains("bad.obj"));
     }
 }

@@ -53,15 +53,11 @@ impl ProceduralKit {
             .map(|(i, (holes, texture))| {
                 let holes: Vec<ShellHole> = holes
                     .iter()
-                    .map(|&(t, p)| ShellHole {
-                        axis: dir_deg(t, p),
-                        half_angle_rad: HOLE_HALF_ANGLE_DEG.to_radians(),
-                    })
+                    .map(|&(t, p)| ShellHole { axis: dir_deg(t, p), half_angle_rad: HOLE_HALF_ANGLE_DEG.to_radians() })
                     .collect();
                 let mut mesh = shapes::shell_cap(r_in, r_out, theta_max, &holes, 60, 120);
                 texture.add(&mut mesh, r_in, &holes, i as u32);
-                Indicator::new(format!("p-indicator-{i}"), mesh)
-                    .expect("procedural shells have recoverable holes")
+                Indicator::new(format!("p-indicator-{i}"), mesh).expect("procedural shells have recoverable holes")
             })
             .collect();
         let hole_radius = r_in * HOLE_HALF_ANGLE_DEG.to_radians().sin();
@@ -72,10 +68,7 @@ impl ProceduralKit {
                 mesh: indenter_mesh(r_in, hole_radius, feature),
             })
             .collect();
-        ProceduralKit {
-            indicators,
-            indenters,
-        }
+        ProceduralKit { indicators, indenters }
     }
 }
 
@@ -89,44 +82,28 @@ enum Texture {
 impl Texture {
     /// Adds inward features on the inner surface, away from the holes.
     fn add(self, mesh: &mut Mesh, r_in: f32, holes: &[ShellHole], seed: u32) {
-        let clear = |d: Vec3| {
-            holes
-                .iter()
-                .all(|h| d.angle_between(h.axis) > h.half_angle_rad + 0.25)
-        };
+        let clear = |d: Vec3| holes.iter().all(|h| d.angle_between(h.axis) > h.half_angle_rad + 0.25);
         match self {
             Texture::Smooth => {}
             Texture::Bumps => {
                 for k in 0..10u32 {
-                    let d = dir_deg(
-                        12.0 + 7.0 * ((k * 7 + seed) % 9) as f32,
-                        36.0 * k as f32 + 11.0 * seed as f32,
-                    );
+                    let d = dir_deg(12.0 + 7.0 * ((k * 7 + seed) % 9) as f32, 36.0 * k as f32 + 11.0 * seed as f32);
                     if clear(d) {
                         // Embedded ball: protrudes 0.8 mm inside the shell.
                         let ball = shapes::sphere(1.6, 24);
-                        mesh.append(
-                            &ball.transformed(&Affine3A::from_translation(d * (r_in + 0.8))),
-                        );
+                        mesh.append(&ball.transformed(&Affine3A::from_translation(d * (r_in + 0.8))));
                     }
                 }
             }
             Texture::Ridges => {
                 for k in 0..3 {
-                    let d = dir_deg(
-                        25.0 + 15.0 * k as f32,
-                        60.0 + 120.0 * k as f32 + 17.0 * seed as f32,
-                    );
+                    let d = dir_deg(25.0 + 15.0 * k as f32, 60.0 + 120.0 * k as f32 + 17.0 * seed as f32);
                     if clear(d) {
                         // A bar tangent to the shell, half buried.
                         let bar = shapes::box_mesh(vec3(10.0, 1.5, 1.6));
                         let tangent = d.cross(Vec3::Z).try_normalize().unwrap_or(Vec3::X);
-                        let frame =
-                            Quat::from_mat3(&glam::Mat3::from_cols(tangent, d.cross(tangent), d));
-                        mesh.append(&bar.transformed(&Affine3A::from_rotation_translation(
-                            frame,
-                            d * (r_in + 0.2),
-                        )));
+                        let frame = Quat::from_mat3(&glam::Mat3::from_cols(tangent, d.cross(tangent), d));
+                        mesh.append(&bar.transformed(&Affine3A::from_rotation_translation(frame, d * (r_in + 0.2))));
                     }
                 }
             }
@@ -187,9 +164,7 @@ impl Feature {
     /// Closed solids standing on the plane `z = 0`, rising to their height along `+z`; each
     /// reaches 1 mm below the plane so that it is rooted in the cap.
     fn solids(self) -> Vec<Mesh> {
-        let at = |m: Mesh, x: f32, y: f32, z: f32| {
-            m.transformed(&Affine3A::from_translation(vec3(x, y, z)))
-        };
+        let at = |m: Mesh, x: f32, y: f32, z: f32| m.transformed(&Affine3A::from_translation(vec3(x, y, z)));
         match self {
             Feature::Sphere => vec![at(shapes::sphere(4.0, 48), 0.0, 0.0, 2.0 - 4.0)],
             Feature::SmallSphere => vec![at(shapes::sphere(2.0, 32), 0.0, 0.0, 1.5 - 2.0)],
@@ -201,23 +176,14 @@ impl Feature {
             Feature::MultiBump => (0..4)
                 .map(|k| {
                     let a = std::f32::consts::FRAC_PI_2 * k as f32;
-                    at(
-                        shapes::sphere(1.5, 24),
-                        5.0 * a.cos(),
-                        5.0 * a.sin(),
-                        1.2 - 1.5,
-                    )
+                    at(shapes::sphere(1.5, 24), 5.0 * a.cos(), 5.0 * a.sin(), 1.2 - 1.5)
                 })
                 .collect(),
             Feature::Cross => vec![
                 at(shapes::box_mesh(vec3(16.0, 1.6, 2.0)), 0.0, 0.0, 0.0),
                 at(shapes::box_mesh(vec3(1.6, 16.0, 2.0)), 0.0, 0.0, 0.0),
             ],
-            Feature::Cone => vec![shapes::revolve(
-                &[(0.0, -1.0), (4.5, -1.0), (0.0, 2.5)],
-                48,
-                false,
-            )],
+            Feature::Cone => vec![shapes::revolve(&[(0.0, -1.0), (4.5, -1.0), (0.0, 2.5)], 48, false)],
             Feature::OffsetSphere => vec![at(shapes::sphere(3.0, 40), 5.0, 0.0, 1.8 - 3.0)],
             Feature::Flat => vec![],
         }
@@ -230,10 +196,8 @@ fn indenter_mesh(r_in: f32, hole_radius: f32, feature: Feature) -> Mesh {
     let d0 = r_in - SHELL_GAP_MM;
     let cap_theta = (CAP_RADIUS_MM / r_in).asin();
     // shell_cap is built about +z; turn it to face -z and move its centre to (0, 0, d0).
-    let flip = Affine3A::from_translation(vec3(0.0, 0.0, d0))
-        * Affine3A::from_rotation_x(std::f32::consts::PI);
-    let mut mesh =
-        shapes::shell_cap(r_in - CAP_THICKNESS_MM, r_in, cap_theta, &[], 12, 72).transformed(&flip);
+    let flip = Affine3A::from_translation(vec3(0.0, 0.0, d0)) * Affine3A::from_rotation_x(std::f32::consts::PI);
+    let mut mesh = shapes::shell_cap(r_in - CAP_THICKNESS_MM, r_in, cap_theta, &[], 12, 72).transformed(&flip);
     let back = d0 - r_in;
     let stem = shapes::cylinder(0.6 * hole_radius, 6.5, 32);
     mesh.append(&stem.transformed(&Affine3A::from_translation(vec3(0.0, 0.0, back - 6.0))));
@@ -254,16 +218,10 @@ mod tests {
         let counts: Vec<usize> = kit.indicators.iter().map(|i| i.holes.len()).collect();
         assert_eq!(counts, vec![1, 1, 2, 2, 1, 2, 1, 2]);
         for ind in &kit.indicators {
-            assert!(
-                (ind.radii.inner_mm - 25.75).abs() < 1e-3
-                    && (ind.radii.outer_mm - 26.75).abs() < 1e-3
-            );
+            assert!((ind.radii.inner_mm - 25.75).abs() < 1e-3 && (ind.radii.outer_mm - 26.75).abs() < 1e-3);
         }
         // Indicator 1's hole was drilled at theta 45, phi 90.
-        let err = kit.indicators[1].holes[0]
-            .axis
-            .angle_between(dir_deg(45.0, 90.0))
-            .to_degrees();
+        let err = kit.indicators[1].holes[0].axis.angle_between(dir_deg(45.0, 90.0)).to_degrees();
         assert!(err < 1.0, "hole axis off by {err} degrees");
         assert_eq!(kit.indenters.len(), 12);
     }

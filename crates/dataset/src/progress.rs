@@ -19,11 +19,9 @@ impl Progress {
     pub fn new(label: &str, total: u64) -> Self {
         let bar = std::io::stderr().is_terminal().then(|| {
             let bar = indicatif::ProgressBar::new(total);
-            let style = indicatif::ProgressStyle::with_template(
-                "{msg} [{bar:40}] {pos}/{len} ({per_sec}, ETA {eta})",
-            )
-            .expect("valid template")
-            .progress_chars("=> ");
+            let style = indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} ({per_sec}, ETA {eta})")
+                .expect("valid template")
+                .progress_chars("=> ");
             bar.set_style(style);
             bar.set_message(label.to_string());
             bar
@@ -50,10 +48,7 @@ impl Progress {
             let secs = self.start.elapsed().as_secs_f64();
             let rate = done as f64 / secs.max(1e-9);
             let eta = (self.total - done.min(self.total)) as f64 / rate.max(1e-9);
-            eprintln!(
-                "{}: {done}/{} ({rate:.1}/s, ETA {eta:.0} s)",
-                self.label, self.total
-            );
+            eprintln!("{}: {done}/{} ({rate:.1}/s, ETA {eta:.0} s)", self.label, self.total);
         }
     }
 

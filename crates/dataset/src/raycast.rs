@@ -21,8 +21,7 @@
 
 use glam::{DVec3, Vec3, Vec3A};
 use obvhs::{
-    BvhBuildParams, bvh2::Bvh2, bvh2::builder::build_bvh2_from_tris, ray::Ray, ray::RayHit,
-    triangle::Triangle,
+    BvhBuildParams, bvh2::Bvh2, bvh2::builder::build_bvh2_from_tris, ray::Ray, ray::RayHit, triangle::Triangle,
 };
 use rayon::prelude::*;
 use sensor::{DepthMap, Sensor};
@@ -55,11 +54,7 @@ impl OriginTriangle {
         let [e01, e12, e20] = exact.map(|n| Vec3A::new(n[0] as f32, n[1] as f32, n[2] as f32));
         let norm1 = |e: Vec3A| e.abs().element_sum();
         let largest = norm1(e01).max(norm1(e12)).max(norm1(e20));
-        let (a, b, c) = (
-            Vec3A::from(tri[0]),
-            Vec3A::from(tri[1]),
-            Vec3A::from(tri[2]),
-        );
+        let (a, b, c) = (Vec3A::from(tri[0]), Vec3A::from(tri[1]), Vec3A::from(tri[2]));
         let normal = (b - a).cross(c - a);
         OriginTriangle {
             e01,
@@ -108,11 +103,7 @@ impl OriginTriangle {
 }
 
 fn cross_i64(a: [i64; 3], b: [i64; 3]) -> [i64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 
 /// Ray directions are snapped to multiples of 2^-24 (exact in f32, at most 6e-8 rad away).
@@ -128,6 +119,34 @@ pub fn snap_direction(d: Vec3A) -> Vec3A {
 fn grid_scale(max_abs: f32) -> f32 {
     let bits = (max_abs.max(1e-3) * 2.0).log2().ceil() as i32;
     2f32.powi(23 - bits)
+}
+
+/// Whether any point of the triangle lies within `radius` of the origin: cheap answers where
+/// they are certain, the exact closest distance otherwise (with a 1 nm margin: dropping must be
+/// certain, keeping too much is harmless).
+fn may_reach(tri: [Vec3; 3], radius: f64) -> bool {
+    let r = radius as f32;
+    if tri.iter().any(|v| v.length_squared() <= r * r * (1.0 - 1e-5)) {
+        return true;
+    }
+    let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
+    let spread = tri.iter().map(|v| v.distance(centre)).fold(0.0, f32::max);
+    if centre.length() - spread * 1.0001 > r * (1.0 + 1e-5) {
+        return false;
+    }
+    origin_distance(tri.map(Vec3::as_dvec3)) <= radius + 1e-6
+}
+
+/// A cheap lower bound on the distance from the origin to the triangle, for ordering
+/// candidates: the larger of its plane's distance and its bounding ball's nearest point.
+fn near_bound(tri: [Vec3; 3]) -> f32 {
+    let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
+    let spread = tri.iter().map(|v| v.distance(centre)).fold(0.0, f32::max);
+    let normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+    let len = normal.length();
+    let plane = if len > 0.0 { normal.dot(tri[0]).abs() / len } else { 0.0 };
+    // Rounded down so that the early exit stays conservative.
+    (plane.max(centre.length() - spread) * (1.0 - 1e-5) - 1e-6).max(0.0)
 }
 
 /// Closest distance from the origin to triangle `[a, b, c]` (Ericson's region test, in f64).
@@ -184,103 +203,207 @@ pub enum Skipping {
     Off,
 }
 
-/// Rays of one tile in structure-of-arrays form, so that testing a triangle against all of
-/// them compiles to SIMD arithmetic.
+/// Rays of one tile in structure-of-arrays form, in groups of eight, so that testing a
+/// triangle against them compiles to 8-wide SIMD arithmetic without bounds checks.
 const LANES: usize = 64;
 /// Lanes tested together: one AVX2 register of f32.
 const GROUP: usize = 8;
+const GROUPS: usize = LANES / GROUP;
 
 struct Lanes {
-    x: [f32; LANES],
-    y: [f32; LANES],
-    z: [f32; LANES],
+    x: [[f32; GROUP]; GROUPS],
+    y: [[f32; GROUP]; GROUPS],
+    z: [[f32; GROUP]; GROUPS],
     /// Nearest hit so far; -1 for lanes that cast nothing (unwanted rays, padding).
-    best: [f32; LANES],
+    best: [[f32; GROUP]; GROUPS],
+    /// The largest `best` of each group.
+    group_reach: [f32; GROUPS],
     wanted: usize,
+}
+
+/// Largest of eight values, as a tree of plain comparisons (a fold with `f32::max` is a serial
+/// chain of NaN-aware steps; our values are never NaN).
+#[inline(always)]
+fn max8(v: &[f32; 8]) -> f32 {
+    let m = |a: f32, b: f32| if a > b { a } else { b };
+    m(m(m(v[0], v[4]), m(v[2], v[6])), m(m(v[1], v[5]), m(v[3], v[7])))
 }
 
 impl Lanes {
     fn new(dirs: &[Vec3A], wanted: impl Fn(Vec3A) -> bool, t_max: f32) -> Self {
         assert!(dirs.len() <= LANES && !dirs.is_empty());
+        let d0 = dirs[0];
         let mut l = Lanes {
-            x: [dirs[0].x; LANES],
-            y: [dirs[0].y; LANES],
-            z: [dirs[0].z; LANES],
-            best: [-1.0; LANES],
+            x: [[d0.x; GROUP]; GROUPS],
+            y: [[d0.y; GROUP]; GROUPS],
+            z: [[d0.z; GROUP]; GROUPS],
+            best: [[-1.0; GROUP]; GROUPS],
+            group_reach: [-1.0; GROUPS],
             wanted: 0,
         };
         for (i, d) in dirs.iter().enumerate() {
-            (l.x[i], l.y[i], l.z[i]) = (d.x, d.y, d.z);
+            let (g, k) = (i / GROUP, i % GROUP);
+            (l.x[g][k], l.y[g][k], l.z[g][k]) = (d.x, d.y, d.z);
             if wanted(*d) {
-                l.best[i] = t_max;
+                l.best[g][k] = t_max;
+                l.group_reach[g] = t_max;
                 l.wanted += 1;
             }
         }
         l
     }
 
+    fn best(&self, i: usize) -> f32 {
+        self.best[i / GROUP][i % GROUP]
+    }
+
     /// The farthest any lane still looks.
     #[inline(always)]
     fn reach(&self) -> f32 {
-        self.best.iter().fold(-1.0f32, |m, &b| m.max(b))
+        max8(&self.group_reach)
     }
 
-    /// Tests every lane against `tri` with the f32 edge tests, eight lanes at a time, skipping
+    /// Tests every lane against `tri` with the f32 edge tests, a group at a time, skipping
     /// groups whose rays all hit something nearer than `near`. Lanes where an edge test is within
     /// its rounding bound of zero are left alone and reported (true) for the exact pass.
     #[inline(always)]
-    fn test(&mut self, tri: &OriginTriangle, near: f32) -> bool {
-        let [ax, ay, az] = [tri.e01.x, tri.e01.y, tri.e01.z];
-        let [bx, by, bz] = [tri.e12.x, tri.e12.y, tri.e12.z];
-        let [cx, cy, cz] = [tri.e20.x, tri.e20.y, tri.e20.z];
-        let [nx, ny, nz] = [tri.normal.x, tri.normal.y, tri.normal.z];
-        let (bound, offset) = (tri.sign_bound, tri.offset);
-        let mut ambiguous = 0u32;
-        for g in (0..LANES).step_by(GROUP) {
-            let best = &mut self.best[g..g + GROUP];
-            if best.iter().fold(-1.0f32, |m, &b| m.max(b)) < near {
+    fn test<K: GroupKernel>(&mut self, tri: &OriginTriangle, near: f32) -> bool {
+        let mut ambiguous = false;
+        for g in 0..GROUPS {
+            if self.group_reach[g] < near {
                 continue;
             }
-            let (xs, ys, zs) = (
-                &self.x[g..g + GROUP],
-                &self.y[g..g + GROUP],
-                &self.z[g..g + GROUP],
-            );
-            for i in 0..GROUP {
-                let (x, y, z) = (xs[i], ys[i], zs[i]);
-                // Same operand order as `dot3`, so both paths round alike.
-                let s0 = x * ax + y * ay + z * az;
-                let s1 = x * bx + y * by + z * bz;
-                let s2 = x * cx + y * cy + z * cz;
-                let amb = (s0.abs() <= bound) | (s1.abs() <= bound) | (s2.abs() <= bound);
-                let pos = (s0 >= 0.0) & (s1 >= 0.0) & (s2 >= 0.0);
-                let neg = (s0 <= 0.0) & (s1 <= 0.0) & (s2 <= 0.0);
-                let den = x * nx + y * ny + z * nz;
-                let t = offset / den;
-                let hit = (pos | neg) & !amb & (den != 0.0) & (t >= 0.0) & (t <= best[i]);
-                best[i] = if hit { t } else { best[i] };
-                ambiguous |= amb as u32;
-            }
+            ambiguous |= K::test_group(&self.x[g], &self.y[g], &self.z[g], &mut self.best[g], tri);
+            self.group_reach[g] = max8(&self.best[g]);
         }
-        ambiguous != 0
+        ambiguous
     }
 
     /// The lanes `test` left alone, one at a time with exact signs.
     #[cold]
     fn test_ambiguous(&mut self, tri: &OriginTriangle) {
         for i in 0..LANES {
-            let d = Vec3A::new(self.x[i], self.y[i], self.z[i]);
+            let (g, k) = (i / GROUP, i % GROUP);
+            let d = Vec3A::new(self.x[g][k], self.y[g][k], self.z[g][k]);
             let bound = tri.sign_bound;
-            let amb = dot3(d, tri.e01).abs() <= bound
-                || dot3(d, tri.e12).abs() <= bound
-                || dot3(d, tri.e20).abs() <= bound;
-            if amb && self.best[i] >= 0.0 {
-                let t = tri.intersect(d, self.best[i]);
-                if t <= self.best[i] {
-                    self.best[i] = t;
+            let amb =
+                dot3(d, tri.e01).abs() <= bound || dot3(d, tri.e12).abs() <= bound || dot3(d, tri.e20).abs() <= bound;
+            let best = self.best[g][k];
+            if amb && best >= 0.0 {
+                let t = tri.intersect(d, best);
+                if t <= best {
+                    self.best[g][k] = t;
+                    self.group_reach[g] = max8(&self.best[g]);
                 }
             }
         }
+    }
+}
+
+/// Tests eight rays against one triangle: updates `best` where the f32 edge tests are certain,
+/// and returns whether any lane was too close to an edge plane to tell.
+trait GroupKernel {
+    fn test_group(
+        x: &[f32; GROUP],
+        y: &[f32; GROUP],
+        z: &[f32; GROUP],
+        best: &mut [f32; GROUP],
+        tri: &OriginTriangle,
+    ) -> bool;
+}
+
+/// Plain Rust, for any CPU.
+struct Portable;
+
+impl GroupKernel for Portable {
+    #[inline(always)]
+    fn test_group(
+        x: &[f32; GROUP],
+        y: &[f32; GROUP],
+        z: &[f32; GROUP],
+        best: &mut [f32; GROUP],
+        tri: &OriginTriangle,
+    ) -> bool {
+        let mut ambiguous = false;
+        for i in 0..GROUP {
+            let d = Vec3A::new(x[i], y[i], z[i]);
+            let (s0, s1, s2) = (dot3(d, tri.e01), dot3(d, tri.e12), dot3(d, tri.e20));
+            let bound = tri.sign_bound;
+            let amb = s0.abs() <= bound || s1.abs() <= bound || s2.abs() <= bound;
+            ambiguous |= amb;
+            let inside = (s0 >= 0.0 && s1 >= 0.0 && s2 >= 0.0) || (s0 <= 0.0 && s1 <= 0.0 && s2 <= 0.0);
+            let den = dot3(d, tri.normal);
+            if !amb && inside && den != 0.0 {
+                let t = tri.offset / den;
+                if t >= 0.0 && t <= best[i] {
+                    best[i] = t;
+                }
+            }
+        }
+        ambiguous
+    }
+}
+
+/// AVX2: the same arithmetic (multiplies then adds in `dot3`'s order, no fused multiply-add),
+/// eight lanes per instruction, so results match `Portable` bit for bit.
+#[cfg(target_arch = "x86_64")]
+struct Avx2;
+
+#[cfg(target_arch = "x86_64")]
+impl GroupKernel for Avx2 {
+    #[inline(always)]
+    fn test_group(
+        x: &[f32; GROUP],
+        y: &[f32; GROUP],
+        z: &[f32; GROUP],
+        best: &mut [f32; GROUP],
+        tri: &OriginTriangle,
+    ) -> bool {
+        // SAFETY: only instantiated inside `cast_block_avx2`, which runs after AVX2 was detected.
+        unsafe { avx2_test_group(x, y, z, best, tri) }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn avx2_test_group(
+    x: &[f32; GROUP],
+    y: &[f32; GROUP],
+    z: &[f32; GROUP],
+    best: &mut [f32; GROUP],
+    tri: &OriginTriangle,
+) -> bool {
+    use std::arch::x86_64::*;
+    // SAFETY: the arrays hold exactly eight f32; unaligned loads and stores are used.
+    unsafe {
+        let (xv, yv, zv) = (_mm256_loadu_ps(x.as_ptr()), _mm256_loadu_ps(y.as_ptr()), _mm256_loadu_ps(z.as_ptr()));
+        let dot = |e: Vec3A| {
+            let xy = _mm256_add_ps(_mm256_mul_ps(xv, _mm256_set1_ps(e.x)), _mm256_mul_ps(yv, _mm256_set1_ps(e.y)));
+            _mm256_add_ps(xy, _mm256_mul_ps(zv, _mm256_set1_ps(e.z)))
+        };
+        let (s0, s1, s2) = (dot(tri.e01), dot(tri.e12), dot(tri.e20));
+        let zero = _mm256_setzero_ps();
+        let abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fff_ffff));
+        let bound = _mm256_set1_ps(tri.sign_bound);
+        let near_zero = |s| _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_and_ps(s, abs_mask), bound);
+        let amb = _mm256_or_ps(_mm256_or_ps(near_zero(s0), near_zero(s1)), near_zero(s2));
+        let ge = |s| _mm256_cmp_ps::<_CMP_GE_OQ>(s, zero);
+        let le = |s| _mm256_cmp_ps::<_CMP_LE_OQ>(s, zero);
+        let pos = _mm256_and_ps(_mm256_and_ps(ge(s0), ge(s1)), ge(s2));
+        let neg = _mm256_and_ps(_mm256_and_ps(le(s0), le(s1)), le(s2));
+        let den = dot(tri.normal);
+        let t = _mm256_div_ps(_mm256_set1_ps(tri.offset), den);
+        let bv = _mm256_loadu_ps(best.as_ptr());
+        let ok = _mm256_and_ps(
+            _mm256_andnot_ps(amb, _mm256_or_ps(pos, neg)),
+            _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_NEQ_UQ>(den, zero),
+                _mm256_and_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(t, zero), _mm256_cmp_ps::<_CMP_LE_OQ>(t, bv)),
+            ),
+        );
+        _mm256_storeu_ps(best.as_mut_ptr(), _mm256_blendv_ps(bv, t, ok));
+        _mm256_movemask_ps(amb) != 0
     }
 }
 
@@ -325,35 +448,29 @@ impl RayCaster {
     /// Builds the caster for a scene made of `parts` (sensor frame, mm) and a sensor of `radius_mm`.
     pub fn new(parts: &[&Mesh], radius_mm: f64, skipping: Skipping) -> Self {
         // One grid for the whole scene, whatever is dropped, so skipping cannot move a vertex.
-        let max_abs = parts
-            .iter()
-            .flat_map(|p| &p.vertices)
-            .map(|v| v.abs().max_element())
-            .fold(0.0, f32::max);
+        let max_abs = parts.iter().flat_map(|p| &p.vertices).map(|v| v.abs().max_element()).fold(0.0, f32::max);
         let scale = grid_scale(max_abs);
-        let snap = |v: Vec3| (v * scale).round() / scale;
-        let mut kept: Vec<([Vec3; 3], f64)> = Vec::new();
+        let inv_scale = 1.0 / scale; // exact: a power of two
+        // Round to nearest by the 1.5 * 2^23 trick: exact for |v * scale| < 2^22 (which
+        // grid_scale guarantees) and far cheaper than a libm call per coordinate.
+        let snap = |v: Vec3| {
+            let magic = Vec3::splat(1.5 * (1u32 << 23) as f32);
+            ((v * scale + magic) - magic) * inv_scale
+        };
+        let mut kept: Vec<([Vec3; 3], f32)> = Vec::new();
         let mut cones = Some(Vec::new());
         let mut triangles_total = 0;
         for part in parts {
             triangles_total += part.triangles.len();
             let start = kept.len();
-            kept.par_extend(
-                (0..part.triangles.len())
-                    .into_par_iter()
-                    .with_min_len(1024)
-                    .filter_map(|i| {
-                        let tri = part.triangle(i).map(snap);
-                        let near = origin_distance(tri.map(Vec3::as_dvec3));
-                        // Keep a 1 nm margin: dropping must be certain, keeping too much is harmless.
-                        (skipping == Skipping::Off || near <= radius_mm + 1e-6)
-                            .then_some((tri, near))
-                    }),
-            );
+            // Each vertex is shared by several triangles: snap it once.
+            let verts: Vec<Vec3> = part.vertices.par_iter().with_min_len(4096).map(|&v| snap(v)).collect();
+            kept.par_extend((0..part.triangles.len()).into_par_iter().with_min_len(1024).filter_map(|i| {
+                let tri = part.triangles[i].map(|k| verts[k as usize]);
+                (skipping == Skipping::Off || may_reach(tri, radius_mm)).then(|| (tri, near_bound(tri)))
+            }));
             if skipping == Skipping::On && kept.len() > start {
-                let cone = Cone::around_directions(
-                    kept[start..].iter().flat_map(|k| k.0).map(Vec3A::from),
-                );
+                let cone = Cone::around_directions(kept[start..].iter().flat_map(|k| k.0).map(Vec3A::from));
                 match (cone, cones.as_mut()) {
                     (Some(c), Some(list)) => list.push(c),
                     _ => cones = None,
@@ -363,22 +480,12 @@ impl RayCaster {
         if skipping == Skipping::Off {
             cones = None;
         }
-        let tris: Vec<Triangle> = kept
-            .iter()
-            .map(|(t, _)| Triangle {
-                v0: t[0].into(),
-                v1: t[1].into(),
-                v2: t[2].into(),
-            })
-            .collect();
+        let tris: Vec<Triangle> =
+            kept.iter().map(|(t, _)| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() }).collect();
         let mut bvh = if tris.is_empty() {
             Bvh2::default()
         } else {
-            build_bvh2_from_tris(
-                &tris,
-                BvhBuildParams::fastest_build(),
-                &mut Default::default(),
-            )
+            build_bvh2_from_tris(&tris, BvhBuildParams::fastest_build(), &mut Default::default())
         };
         // Pad the boxes: a ray lying exactly in a box's face plane (an axis-aligned ray through
         // an edge on the axis) must not be rejected by the slab test's rounding.
@@ -388,28 +495,15 @@ impl RayCaster {
             node.aabb.max += pad;
         }
         let order: Vec<usize> = bvh.primitive_indices.iter().map(|&i| i as usize).collect();
-        let triangles = order
-            .par_iter()
-            .with_min_len(1024)
-            .map(|&i| OriginTriangle::new(kept[i].0, scale))
-            .collect();
+        let triangles = order.par_iter().with_min_len(1024).map(|&i| OriginTriangle::new(kept[i].0, scale)).collect();
         let bounds = order
             .par_iter()
             .with_min_len(1024)
             .map(|&i| {
                 let [a, b, c] = kept[i].0.map(Vec3A::from);
                 let centre = (a + b + c) / 3.0;
-                let radius = centre
-                    .distance(a)
-                    .max(centre.distance(b))
-                    .max(centre.distance(c))
-                    * 1.0001
-                    + 1e-6;
-                // Rounded down so that the early exit stays conservative.
-                TriangleBounds {
-                    ball: BallView::new(centre, radius),
-                    near: (kept[i].1 * (1.0 - 1e-6)) as f32,
-                }
+                let radius = centre.distance(a).max(centre.distance(b)).max(centre.distance(c)) * 1.0001 + 1e-6;
+                TriangleBounds { ball: BallView::new(centre, radius), near: kept[i].1 }
             })
             .collect();
         let node_balls = bvh
@@ -421,16 +515,7 @@ impl RayCaster {
                 BallView::new((lo + hi) * 0.5, (hi - lo).length() * 0.5)
             })
             .collect();
-        RayCaster {
-            bvh,
-            triangles,
-            bounds,
-            node_balls,
-            cones,
-            radius_mm: radius_mm as f32,
-            skipping,
-            triangles_total,
-        }
+        RayCaster { bvh, triangles, bounds, node_balls, cones, radius_mm: radius_mm as f32, skipping, triangles_total }
     }
 
     pub fn triangles_kept(&self) -> usize {
@@ -438,11 +523,7 @@ impl RayCaster {
     }
 
     fn t_max(&self) -> f32 {
-        if self.skipping == Skipping::On {
-            self.radius_mm
-        } else {
-            f32::INFINITY
-        }
+        if self.skipping == Skipping::On { self.radius_mm } else { f32::INFINITY }
     }
 
     /// Distance to the first hit along unit direction `dir`, or infinity (none, or none within
@@ -455,13 +536,8 @@ impl RayCaster {
         let ray = Ray::new(Vec3A::ZERO, dir, 0.0, self.t_max());
         let mut hit = RayHit::none();
         let tris = &self.triangles;
-        self.bvh
-            .ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(dir, r.tmax));
-        if hit.t < self.t_max() {
-            hit.t
-        } else {
-            f32::INFINITY
-        }
+        self.bvh.ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(dir, r.tmax));
+        if hit.t < self.t_max() { hit.t } else { f32::INFINITY }
     }
 
     fn wanted(&self, dir: Vec3A) -> bool {
@@ -485,12 +561,7 @@ impl RayCaster {
         let ball = &self.node_balls[node];
         let mut survivors = pool.pop().unwrap_or_default();
         survivors.clear();
-        survivors.extend(
-            active
-                .iter()
-                .copied()
-                .filter(|&k| cones[k as usize].may_meet(ball)),
-        );
+        survivors.extend(active.iter().copied().filter(|&k| cones[k as usize].may_meet(ball)));
         if !survivors.is_empty() {
             let n = &self.bvh.nodes[node];
             if n.prim_count == 0 {
@@ -518,13 +589,14 @@ impl RayCaster {
         tiles: &[(std::ops::Range<usize>, Cone)],
         hits: &mut [f32],
         scratch: &mut Scratch,
+        simd: bool,
     ) -> usize {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
+        if simd && std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2, checked just above.
             return unsafe { self.cast_block_avx2(rays, tiles, hits, scratch) };
         }
-        self.cast_block_portable(rays, tiles, hits, scratch)
+        self.cast_block_with::<Portable>(rays, tiles, hits, scratch)
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -536,11 +608,11 @@ impl RayCaster {
         hits: &mut [f32],
         scratch: &mut Scratch,
     ) -> usize {
-        self.cast_block_portable(rays, tiles, hits, scratch)
+        self.cast_block_with::<Avx2>(rays, tiles, hits, scratch)
     }
 
     #[inline(always)]
-    fn cast_block_portable(
+    fn cast_block_with<K: GroupKernel>(
         &self,
         rays: &RayBundle,
         tiles: &[(std::ops::Range<usize>, Cone)],
@@ -559,11 +631,7 @@ impl RayCaster {
                 Some(cones) => cones.iter().any(|c| c.may_meet_cone(cone)),
                 None => true,
             };
-            let l = Lanes::new(
-                &rays.dirs[range.clone()],
-                |d| reachable && self.wanted(d),
-                t_max,
-            );
+            let l = Lanes::new(&rays.dirs[range.clone()], |d| reachable && self.wanted(d), t_max);
             if l.wanted > 0 {
                 active.push(k as u16);
             }
@@ -586,16 +654,14 @@ impl RayCaster {
                     break;
                 }
                 let tri = &self.triangles[t as usize];
-                if l.test(tri, near) {
+                if l.test::<K>(tri, near) {
                     l.test_ambiguous(tri);
                 }
                 reach = l.reach();
             }
             let range = &tiles[k as usize].0;
-            for (hit, &best) in hits[range.start - first..range.end - first]
-                .iter_mut()
-                .zip(&l.best)
-            {
+            for (i, hit) in hits[range.start - first..range.end - first].iter_mut().enumerate() {
+                let best = l.best(i);
                 if best >= 0.0 && best < t_max {
                     *hit = best;
                 }
@@ -608,6 +674,11 @@ impl RayCaster {
     /// First-hit distance of every ray of the bundle (infinity for none within reach), and how
     /// many rays were actually traversed.
     pub fn first_hits(&self, rays: &RayBundle) -> (Vec<f32>, usize) {
+        self.first_hits_using(rays, true)
+    }
+
+    /// `first_hits`, with the SIMD kernel allowed or not (the portable one is then tested too).
+    fn first_hits_using(&self, rays: &RayBundle, simd: bool) -> (Vec<f32>, usize) {
         let mut hits = vec![f32::INFINITY; rays.len()];
         // Blocks are contiguous ranges of rays: hand each worker whole blocks.
         let mut work = Vec::with_capacity(rays.blocks.len());
@@ -621,9 +692,7 @@ impl RayCaster {
         }
         let cast: usize = work
             .into_par_iter()
-            .map_init(Scratch::default, |scratch, (tiles, out)| {
-                self.cast_block(rays, tiles, out, scratch)
-            })
+            .map_init(Scratch::default, |scratch, (tiles, out)| self.cast_block(rays, tiles, out, scratch, simd))
             .sum();
         (hits, cast)
     }
@@ -661,9 +730,7 @@ mod tests {
     fn rng_dirs(n: usize, seed: u64) -> Vec<Vec3A> {
         let mut s = seed;
         let mut next = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
         };
         let mut out = Vec::with_capacity(n);
@@ -679,21 +746,9 @@ mod tests {
     #[test]
     fn closest_distance_matches_brute_force() {
         let tris = [
-            [
-                DVec3::new(1.0, 1.0, 5.0),
-                DVec3::new(-1.0, 1.0, 5.0),
-                DVec3::new(0.0, -1.0, 5.0),
-            ],
-            [
-                DVec3::new(3.0, 0.0, 0.0),
-                DVec3::new(4.0, 1.0, 0.0),
-                DVec3::new(4.0, -1.0, 2.0),
-            ],
-            [
-                DVec3::new(-2.0, 3.0, 1.0),
-                DVec3::new(2.0, 3.0, 1.0),
-                DVec3::new(0.0, 3.0, 4.0),
-            ],
+            [DVec3::new(1.0, 1.0, 5.0), DVec3::new(-1.0, 1.0, 5.0), DVec3::new(0.0, -1.0, 5.0)],
+            [DVec3::new(3.0, 0.0, 0.0), DVec3::new(4.0, 1.0, 0.0), DVec3::new(4.0, -1.0, 2.0)],
+            [DVec3::new(-2.0, 3.0, 1.0), DVec3::new(2.0, 3.0, 1.0), DVec3::new(0.0, 3.0, 4.0)],
         ];
         for t in tris {
             let mut best = f64::INFINITY;
@@ -715,27 +770,16 @@ mod tests {
         let meshes = [
             (shapes::sphere(10.0, 64), 4.0),
             (shapes::box_mesh(Vec3::new(8.0, 9.0, 10.0)), 4.0),
-            (
-                shapes::cylinder(6.0, 12.0, 48)
-                    .transformed(&Affine3A::from_translation(Vec3::new(0.0, 0.0, -6.0))),
-                4.0,
-            ),
+            (shapes::cylinder(6.0, 12.0, 48).transformed(&Affine3A::from_translation(Vec3::new(0.0, 0.0, -6.0))), 4.0),
             (shapes::shell_cap(25.75, 26.75, 3.1, &[], 40, 80), 3.09),
         ];
         for (mesh, theta_max) in &meshes {
             let caster = RayCaster::new(&[mesh], 1000.0, Skipping::Off);
             // Aim rays straight at vertices too: the hardest case for leaks.
             let mut dirs = rng_dirs(100_000, 7);
-            dirs.extend(
-                mesh.vertices
-                    .iter()
-                    .filter_map(|v| Vec3A::from(*v).try_normalize()),
-            );
+            dirs.extend(mesh.vertices.iter().filter_map(|v| Vec3A::from(*v).try_normalize()));
             dirs.retain(|d| d.z.clamp(-1.0, 1.0).acos() < *theta_max);
-            let leaks = dirs
-                .iter()
-                .filter(|&&d| !caster.first_hit(d).is_finite())
-                .count();
+            let leaks = dirs.iter().filter(|&&d| !caster.first_hit(d).is_finite()).count();
             assert_eq!(leaks, 0, "{leaks} of {} rays leaked", dirs.len());
         }
     }
@@ -746,8 +790,7 @@ mod tests {
         let sensor = sensor::Sensor::default();
         let rays = RayBundle::new(&sensor);
         let meshes = [
-            shapes::sphere(10.0, 64)
-                .transformed(&Affine3A::from_translation(Vec3::new(0.5, -0.3, 0.2))),
+            shapes::sphere(10.0, 64).transformed(&Affine3A::from_translation(Vec3::new(0.5, -0.3, 0.2))),
             shapes::box_mesh(Vec3::new(8.0, 9.0, 10.0)),
             shapes::shell_cap(25.75, 26.75, 3.1, &[], 40, 80),
         ];
@@ -755,6 +798,7 @@ mod tests {
             let caster = RayCaster::new(&[mesh], 1000.0, Skipping::Off);
             let (hits, cast) = caster.first_hits(&rays);
             assert_eq!(cast, rays.len());
+            assert!(hits == caster.first_hits_using(&rays, false).0, "SIMD and portable kernels differ");
             for (h, d) in hits.iter().zip(&rays.dirs) {
                 assert!(h.is_finite(), "ray {d} leaked");
                 assert_eq!(*h, caster.first_hit(*d), "ray {d}");
@@ -768,10 +812,7 @@ mod tests {
         for d in rng_dirs(1000, 3) {
             let t = caster.first_hit(d);
             // The tessellated sphere lies inside the true one by at most the chord sagitta.
-            assert!(
-                t <= 10.0 + 1e-5 && t > 10.0 * (std::f32::consts::PI / 128.0).cos() - 1e-4,
-                "{t}"
-            );
+            assert!(t <= 10.0 + 1e-5 && t > 10.0 * (std::f32::consts::PI / 128.0).cos() - 1e-4, "{t}");
         }
     }
 }

@@ -29,14 +29,9 @@ impl Cone {
             sum += d / len;
         }
         let axis = sum.try_normalize()?;
-        let cos = dirs
-            .map(|d| {
-                glam::DVec3::from(d.to_array().map(f64::from))
-                    .normalize()
-                    .dot(axis)
-            })
-            .fold(1.0f64, f64::min)
-            - 1e-5;
+        let cos =
+            dirs.map(|d| glam::DVec3::from(d.to_array().map(f64::from)).normalize().dot(axis)).fold(1.0f64, f64::min)
+                - 1e-5;
         (cos > 0.01).then(|| Cone {
             axis: Vec3A::from(axis.as_vec3()),
             cos_half_angle: cos as f32,
@@ -65,8 +60,7 @@ impl Cone {
 
     /// Whether two cones share a direction (conservative).
     pub fn may_meet_cone(&self, other: &Cone) -> bool {
-        let cos_sum =
-            self.cos_half_angle * other.cos_half_angle - self.sin_half_angle * other.sin_half_angle;
+        let cos_sum = self.cos_half_angle * other.cos_half_angle - self.sin_half_angle * other.sin_half_angle;
         self.axis.dot(other.axis) >= cos_sum - 1e-5
     }
 }
@@ -81,18 +75,11 @@ pub struct BallView {
 
 impl BallView {
     pub fn new(centre: Vec3A, radius: f32) -> Self {
-        let (c, r) = (
-            glam::DVec3::from(centre.to_array().map(f64::from)),
-            radius as f64 * 1.0001 + 1e-6,
-        );
+        let (c, r) = (glam::DVec3::from(centre.to_array().map(f64::from)), radius as f64 * 1.0001 + 1e-6);
         let dist = c.length();
         if dist <= r {
             // The ball holds the origin: every direction meets it (0 >= -cos(alpha) - eps).
-            return BallView {
-                dir: Vec3A::ZERO,
-                cos_b: -1.0,
-                sin_b: 0.0,
-            };
+            return BallView { dir: Vec3A::ZERO, cos_b: -1.0, sin_b: 0.0 };
         }
         let sin_b = r / dist;
         let cos_b = (1.0 - sin_b * sin_b).sqrt();
@@ -132,37 +119,24 @@ impl RayBundle {
             (ty / Self::BLOCK_TILES, tx / Self::BLOCK_TILES)
         };
         rays.sort_by_key(|r| (block_of(r.index), tile_of(r.index), r.index));
-        let dirs: Vec<Vec3A> = rays
-            .iter()
-            .map(|r| crate::raycast::snap_direction(Vec3A::from(r.dir)))
-            .collect();
+        let dirs: Vec<Vec3A> = rays.iter().map(|r| crate::raycast::snap_direction(Vec3A::from(r.dir))).collect();
         let mut tiles: Vec<(std::ops::Range<usize>, Cone)> = Vec::new();
         let mut blocks: Vec<std::ops::Range<usize>> = Vec::new();
         let mut start = 0;
         while start < rays.len() {
-            if blocks.last().is_none_or(|b| {
-                block_of(rays[tiles[b.start].0.start].index) != block_of(rays[start].index)
-            }) {
+            if blocks.last().is_none_or(|b| block_of(rays[tiles[b.start].0.start].index) != block_of(rays[start].index))
+            {
                 blocks.push(tiles.len()..tiles.len());
             }
             blocks.last_mut().unwrap().end += 1;
             let key = tile_of(rays[start].index);
-            let end = start
-                + rays[start..]
-                    .iter()
-                    .take_while(|r| tile_of(r.index) == key)
-                    .count();
+            let end = start + rays[start..].iter().take_while(|r| tile_of(r.index) == key).count();
             let cone = Cone::around_directions(dirs[start..end].iter().copied())
                 .expect("a tile of neighbouring pixels spans far less than 90 degrees");
             tiles.push((start..end, cone));
             start = end;
         }
-        RayBundle {
-            dirs,
-            indices: rays.iter().map(|r| r.index).collect(),
-            tiles,
-            blocks,
-        }
+        RayBundle { dirs, indices: rays.iter().map(|r| r.index).collect(), tiles, blocks }
     }
 
     pub fn len(&self) -> usize {
@@ -202,19 +176,14 @@ mod tests {
 
     #[test]
     fn ball_and_cone_tests_are_conservative() {
-        let cone = Cone::around_directions(
-            [Vec3A::new(0.1, 0.0, 1.0), Vec3A::new(-0.1, 0.05, 1.0)].into_iter(),
-        )
-        .unwrap();
+        let cone =
+            Cone::around_directions([Vec3A::new(0.1, 0.0, 1.0), Vec3A::new(-0.1, 0.05, 1.0)].into_iter()).unwrap();
         // A ball grazing the cone's edge from outside and one clearly away.
         let edge = Vec3A::new(0.1, 0.0, 1.0).normalize() * 20.0 + Vec3A::X * 0.5;
         assert!(cone.may_meet_ball(edge, 0.6));
         assert!(!cone.may_meet_ball(Vec3A::new(0.0, 0.0, -20.0), 1.0));
         assert!(!cone.may_meet_ball(Vec3A::new(10.0, 0.0, 1.0), 1.0));
-        assert!(
-            cone.may_meet_ball(Vec3A::new(0.3, 0.0, 0.1), 1.0),
-            "a ball around the origin meets every cone"
-        );
+        assert!(cone.may_meet_ball(Vec3A::new(0.3, 0.0, 0.1), 1.0), "a ball around the origin meets every cone");
         let far = Cone::around_directions([Vec3A::X].into_iter()).unwrap();
         assert!(!cone.may_meet_cone(&far));
         assert!(cone.may_meet_cone(&cone));

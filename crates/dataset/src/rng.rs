@@ -55,18 +55,10 @@ mod tests {
 
     #[test]
     fn streams_are_reproducible_and_distinct() {
-        let a: Vec<u64> = (0..4)
-            .map(|_| SplitMix64::for_item(7, 3).next_u64())
-            .collect();
+        let a: Vec<u64> = (0..4).map(|_| SplitMix64::for_item(7, 3).next_u64()).collect();
         assert!(a.windows(2).all(|w| w[0] == w[1]));
-        assert_ne!(
-            SplitMix64::for_item(7, 3).next_u64(),
-            SplitMix64::for_item(7, 4).next_u64()
-        );
-        assert_ne!(
-            SplitMix64::for_item(7, 3).next_u64(),
-            SplitMix64::for_item(8, 3).next_u64()
-        );
+        assert_ne!(SplitMix64::for_item(7, 3).next_u64(), SplitMix64::for_item(7, 4).next_u64());
+        assert_ne!(SplitMix64::for_item(7, 3).next_u64(), SplitMix64::for_item(8, 3).next_u64());
         let mut r = SplitMix64::new(1);
         let mean = (0..100_000).map(|_| r.unit()).sum::<f64>() / 1e5;
         assert!((mean - 0.5).abs() < 0.01);

@@ -15,25 +15,13 @@ use crate::mesh::Mesh;
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     #[error("indicator {indicator}: {source}")]
-    Holes {
-        indicator: String,
-        source: crate::holes::HoleError,
-    },
-    #[error(
-        "indicator {indicator} has {holes} hole(s) but the scene seats {indenters} indenter(s)"
-    )]
-    TooManyIndenters {
-        indicator: String,
-        holes: usize,
-        indenters: usize,
-    },
+    Holes { indicator: String, source: crate::holes::HoleError },
+    #[error("indicator {indicator} has {holes} hole(s) but the scene seats {indenters} indenter(s)")]
+    TooManyIndenters { indicator: String, holes: usize, indenters: usize },
     #[error(
         "indenter {indenter}: no part of it is wider than the {hole_radius_mm:.2} mm hole, so it cannot rest against the shell"
     )]
-    CannotSeat {
-        indenter: String,
-        hole_radius_mm: f32,
-    },
+    CannotSeat { indenter: String, hole_radius_mm: f32 },
 }
 
 /// An indicator shell ready to take indenters: its mesh and recovered holes.
@@ -48,16 +36,9 @@ pub struct Indicator {
 impl Indicator {
     pub fn new(name: impl Into<String>, mesh: Mesh) -> Result<Self, SceneError> {
         let name = name.into();
-        let (radii, holes) = find_holes(&mesh).map_err(|source| SceneError::Holes {
-            indicator: name.clone(),
-            source,
-        })?;
-        Ok(Indicator {
-            name,
-            mesh,
-            radii,
-            holes,
-        })
+        let (radii, holes) =
+            find_holes(&mesh).map_err(|source| SceneError::Holes { indicator: name.clone(), source })?;
+        Ok(Indicator { name, mesh, radii, holes })
     }
 }
 
@@ -79,18 +60,10 @@ impl Indenter {
             .iter()
             .filter_map(|v| {
                 let rho = v.x.hypot(v.y);
-                (rho > hole_radius_mm + 0.1 && rho < r_in)
-                    .then(|| v.z + (r_in * r_in - rho * rho).sqrt())
+                (rho > hole_radius_mm + 0.1 && rho < r_in).then(|| v.z + (r_in * r_in - rho * rho).sqrt())
             })
             .fold(f32::INFINITY, f32::min);
-        if d.is_finite() {
-            Ok(d)
-        } else {
-            Err(SceneError::CannotSeat {
-                indenter: self.name.clone(),
-                hole_radius_mm,
-            })
-        }
+        if d.is_finite() { Ok(d) } else { Err(SceneError::CannotSeat { indenter: self.name.clone(), hole_radius_mm }) }
     }
 }
 
@@ -130,11 +103,7 @@ pub struct Scene {
 
 impl Scene {
     /// Seats the indenters in the indicator's holes and poses the assembly.
-    pub fn assemble(
-        indicator: &Indicator,
-        indenters: &[(&Indenter, f32)],
-        pose: RigPose,
-    ) -> Result<Scene, SceneError> {
+    pub fn assemble(indicator: &Indicator, indenters: &[(&Indenter, f32)], pose: RigPose) -> Result<Scene, SceneError> {
         if indenters.len() > indicator.holes.len() {
             return Err(SceneError::TooManyIndenters {
                 indicator: indicator.name.clone(),
@@ -150,17 +119,9 @@ impl Scene {
             let hole = indicator.holes[hole_index];
             let seat = seat_pose(indenter, indicator.radii.inner_mm, hole, angle_deg)?;
             parts.push(indenter.mesh.transformed(&(rig * seat)));
-            placements.push(Placement {
-                indenter: indenter.name.clone(),
-                hole: hole_index,
-                angle_deg,
-            });
+            placements.push(Placement { indenter: indenter.name.clone(), hole: hole_index, angle_deg });
         }
-        let description = SceneDescription {
-            indicator: indicator.name.clone(),
-            placements,
-            pose,
-        };
+        let description = SceneDescription { indicator: indicator.name.clone(), placements, pose };
         Ok(Scene { description, parts })
     }
 
@@ -171,12 +132,7 @@ impl Scene {
 
 /// Indenter frame -> shell frame: turn about its own axis, point `+z` inwards along the hole,
 /// and slide out until the cap rests against the shell.
-pub fn seat_pose(
-    indenter: &Indenter,
-    r_in: f32,
-    hole: Hole,
-    angle_deg: f32,
-) -> Result<Affine3A, SceneError> {
+pub fn seat_pose(indenter: &Indenter, r_in: f32, hole: Hole, angle_deg: f32) -> Result<Affine3A, SceneError> {
     let distance = indenter.seat_distance_mm(r_in, hole.radius_mm)?;
     let align = Quat::from_rotation_arc(Vec3::Z, -hole.axis.normalize());
     Ok(Affine3A::from_rotation_translation(
@@ -195,10 +151,7 @@ mod tests {
         let kit = crate::procedural::ProceduralKit::new(25.0);
         let indicator = &kit.indicators[0];
         let indenter = &kit.indenters[0];
-        let pose = RigPose {
-            b_axis_deg: 0.0,
-            z_travel_mm: 0.0,
-        };
+        let pose = RigPose { b_axis_deg: 0.0, z_travel_mm: 0.0 };
         let scene = Scene::assemble(indicator, &[(indenter, 30.0)], pose).unwrap();
         let seated = &scene.parts[1];
         let r_in = indicator.radii.inner_mm;
@@ -218,24 +171,10 @@ mod tests {
     fn b_axis_and_z_travel_move_the_assembly() {
         let kit = crate::procedural::ProceduralKit::new(25.0);
         let (indicator, indenter) = (&kit.indicators[0], &kit.indenters[1]);
-        let at = |b, z| {
-            Scene::assemble(
-                indicator,
-                &[(indenter, 0.0)],
-                RigPose {
-                    b_axis_deg: b,
-                    z_travel_mm: z,
-                },
-            )
-            .unwrap()
-        };
+        let at =
+            |b, z| Scene::assemble(indicator, &[(indenter, 0.0)], RigPose { b_axis_deg: b, z_travel_mm: z }).unwrap();
         let (a, turned, pressed) = (at(0.0, 0.0), at(90.0, 0.0), at(0.0, 1.5));
-        for ((p, q), r) in a.parts[1]
-            .vertices
-            .iter()
-            .zip(&turned.parts[1].vertices)
-            .zip(&pressed.parts[1].vertices)
-        {
+        for ((p, q), r) in a.parts[1].vertices.iter().zip(&turned.parts[1].vertices).zip(&pressed.parts[1].vertices) {
             let rotated = Quat::from_rotation_z(90f32.to_radians()) * *p;
             assert!(rotated.distance(*q) < 1e-4);
             assert!((*p - Vec3::Z * 1.5).distance(*r) < 1e-4);
@@ -247,21 +186,11 @@ mod tests {
         let kit = crate::procedural::ProceduralKit::new(25.0);
         let one_hole = kit.indicators.iter().find(|i| i.holes.len() == 1).unwrap();
         let ind = &kit.indenters[0];
-        let pose = RigPose {
-            b_axis_deg: 0.0,
-            z_travel_mm: 0.0,
-        };
-        let e = Scene::assemble(one_hole, &[(ind, 0.0), (ind, 0.0)], pose)
-            .unwrap_err()
-            .to_string();
+        let pose = RigPose { b_axis_deg: 0.0, z_travel_mm: 0.0 };
+        let e = Scene::assemble(one_hole, &[(ind, 0.0), (ind, 0.0)], pose).unwrap_err().to_string();
         assert!(e.contains("1 hole(s)"), "{e}");
-        let pin = Indenter {
-            name: "pin".into(),
-            mesh: shapes::cylinder(1.0, 5.0, 16),
-        };
-        let e = Scene::assemble(one_hole, &[(&pin, 0.0)], pose)
-            .unwrap_err()
-            .to_string();
+        let pin = Indenter { name: "pin".into(), mesh: shapes::cylinder(1.0, 5.0, 16) };
+        let e = Scene::assemble(one_hole, &[(&pin, 0.0)], pose).unwrap_err().to_string();
         assert!(e.contains("pin") && e.contains("cannot rest"), "{e}");
     }
 }

@@ -30,11 +30,7 @@ pub fn revolve(profile: &[(f32, f32)], segments: u32, closed_loop: bool) -> Mesh
             rings.push((start..start + n as u32).collect());
         }
     }
-    let links = if closed_loop {
-        profile.len()
-    } else {
-        profile.len() - 1
-    };
+    let links = if closed_loop { profile.len() } else { profile.len() - 1 };
     for k in 0..links {
         let (a, b) = (&rings[k], &rings[(k + 1) % profile.len()]);
         for j in 0..n {
@@ -56,11 +52,7 @@ pub fn sphere(radius: f32, segments: u32) -> Mesh {
     let profile: Vec<(f32, f32)> = (0..=rings)
         .map(|i| {
             let a = std::f32::consts::PI * i as f32 / rings as f32;
-            if i == 0 || i == rings {
-                (0.0, -radius * a.cos())
-            } else {
-                (radius * a.sin(), -radius * a.cos())
-            }
+            if i == 0 || i == rings { (0.0, -radius * a.cos()) } else { (radius * a.sin(), -radius * a.cos()) }
         })
         .collect();
     revolve(&profile, segments, false)
@@ -68,11 +60,7 @@ pub fn sphere(radius: f32, segments: u32) -> Mesh {
 
 /// Solid cylinder along `z` from `z = 0` to `z = height`.
 pub fn cylinder(radius: f32, height: f32, segments: u32) -> Mesh {
-    revolve(
-        &[(0.0, 0.0), (radius, 0.0), (radius, height), (0.0, height)],
-        segments,
-        false,
-    )
+    revolve(&[(0.0, 0.0), (radius, 0.0), (radius, height), (0.0, height)], segments, false)
 }
 
 /// Solid ring (torus) about `z`: `major` to the tube's centre, `minor` the tube's radius.
@@ -99,22 +87,9 @@ pub fn box_mesh(size: Vec3) -> Mesh {
             )
         })
         .collect();
-    let quads = [
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-    ];
-    let triangles = quads
-        .iter()
-        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-        .collect();
-    Mesh {
-        vertices,
-        triangles,
-    }
+    let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+    let triangles = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
+    Mesh { vertices, triangles }
 }
 
 /// Triangular prism along `x` (length `length`): a knife edge of `width` at `z = 0` rising to
@@ -129,20 +104,8 @@ pub fn wedge(length: f32, width: f32, height: f32) -> Mesh {
         vec3(l, w, 0.0),
         vec3(l, 0.0, height),
     ];
-    let triangles = vec![
-        [0, 2, 1],
-        [3, 4, 5],
-        [0, 1, 4],
-        [0, 4, 3],
-        [1, 2, 5],
-        [1, 5, 4],
-        [0, 3, 5],
-        [0, 5, 2],
-    ];
-    Mesh {
-        vertices,
-        triangles,
-    }
+    let triangles = vec![[0, 2, 1], [3, 4, 5], [0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4], [0, 3, 5], [0, 5, 2]];
+    Mesh { vertices, triangles }
 }
 
 /// A hole through a shell: cells whose centre lies within `half_angle_rad` of `axis` are removed.
@@ -155,14 +118,7 @@ pub struct ShellHole {
 /// Spherical shell cap about `+z` between radii `r_in` and `r_out`, from the pole down to polar
 /// angle `theta_max`, with holes. Built as a cell complex on a (theta, phi) grid: the holes' rims
 /// follow cell edges, and walls close every boundary, so the solid stays watertight.
-pub fn shell_cap(
-    r_in: f32,
-    r_out: f32,
-    theta_max: f32,
-    holes: &[ShellHole],
-    n_theta: u32,
-    n_phi: u32,
-) -> Mesh {
+pub fn shell_cap(r_in: f32, r_out: f32, theta_max: f32, holes: &[ShellHole], n_theta: u32, n_phi: u32) -> Mesh {
     let (nt, np) = (n_theta as usize, n_phi as usize);
     let dir = |i: usize, j: usize| {
         let t = theta_max * i as f32 / nt as f32;
@@ -193,9 +149,7 @@ pub fn shell_cap(
         let t = theta_max * (i as f32 + 0.5) / nt as f32;
         let p = std::f32::consts::TAU * (j as f32 + 0.5) / np as f32;
         let c = vec3(t.sin() * p.cos(), t.sin() * p.sin(), t.cos());
-        holes
-            .iter()
-            .all(|h| c.angle_between(h.axis.normalize()) > h.half_angle_rad)
+        holes.iter().all(|h| c.angle_between(h.axis.normalize()) > h.half_angle_rad)
     };
     let mut push = |t: [u32; 3]| {
         if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
@@ -211,12 +165,7 @@ pub fn shell_cap(
             let (a, b, c, d) = ((i, j), (i, j1), (i + 1, j1), (i + 1, j));
             // Outer face seen from outside, inner face seen from the centre.
             for layer in 0..2 {
-                let q = [
-                    v(a.0, a.1, layer),
-                    v(b.0, b.1, layer),
-                    v(c.0, c.1, layer),
-                    v(d.0, d.1, layer),
-                ];
+                let q = [v(a.0, a.1, layer), v(b.0, b.1, layer), v(c.0, c.1, layer), v(d.0, d.1, layer)];
                 if layer == 1 {
                     push([q[0], q[3], q[2]]);
                     push([q[0], q[2], q[1]]);
@@ -263,10 +212,7 @@ pub(crate) mod tests {
             }
         }
         let open: Vec<_> = count.iter().filter(|(_, c)| **c != 0).take(5).collect();
-        assert!(
-            open.is_empty(),
-            "edges not matched in opposite directions: {open:?}"
-        );
+        assert!(open.is_empty(), "edges not matched in opposite directions: {open:?}");
     }
 
     /// Signed volume by the divergence theorem: positive for outward winding.
@@ -292,24 +238,15 @@ pub(crate) mod tests {
         for (mesh, expected) in cases {
             assert_closed(&mesh);
             let v = volume(&mesh);
-            assert!(
-                (v - expected).abs() < 0.01 * expected,
-                "volume {v} vs {expected}"
-            );
+            assert!((v - expected).abs() < 0.01 * expected, "volume {v} vs {expected}");
         }
     }
 
     #[test]
     fn shell_with_holes_is_closed() {
         let holes = [
-            ShellHole {
-                axis: vec3(0.0, 0.7, 0.7),
-                half_angle_rad: 0.14,
-            },
-            ShellHole {
-                axis: vec3(0.5, -0.5, 0.7),
-                half_angle_rad: 0.2,
-            },
+            ShellHole { axis: vec3(0.0, 0.7, 0.7), half_angle_rad: 0.14 },
+            ShellHole { axis: vec3(0.5, -0.5, 0.7), half_angle_rad: 0.2 },
         ];
         let shell = shell_cap(25.75, 26.75, 1.5, &holes, 60, 120);
         assert_closed(&shell);

@@ -11,9 +11,7 @@ fn depth_of(sensor: &Sensor, t: f64) -> f64 {
 }
 
 fn cast(sensor: &Sensor, mesh: &Mesh, skipping: Skipping) -> sensor::DepthMap {
-    RayCaster::new(&[mesh], sensor.radius_mm, skipping)
-        .depth_map(sensor, &RayBundle::new(sensor))
-        .0
+    RayCaster::new(&[mesh], sensor.radius_mm, skipping).depth_map(sensor, &RayBundle::new(sensor)).0
 }
 
 /// Compares a cast depth map with `truth(direction)` over every useful pixel.
@@ -25,10 +23,7 @@ fn max_error_mm(sensor: &Sensor, depth: &sensor::DepthMap, truth: impl Fn(DVec3)
         for x in 0..n {
             let i = (y * n + x) as usize;
             if !mask[i] {
-                assert_eq!(
-                    depth.depth_mm[i], 0.0,
-                    "pixel outside the useful disk has depth"
-                );
+                assert_eq!(depth.depth_mm[i], 0.0, "pixel outside the useful disk has depth");
                 continue;
             }
             let (u, v) = sensor.crop_to_frame(x, y);
@@ -55,39 +50,22 @@ fn pressed_sphere_matches_the_closed_form_within_a_micrometre() {
     ];
     for axis in dirs {
         let centre = axis * (sensor.radius_mm - pressed + rho);
-        let mesh = shapes::sphere(rho as f32, 720)
-            .transformed(&Affine3A::from_translation(centre.as_vec3()));
+        let mesh = shapes::sphere(rho as f32, 720).transformed(&Affine3A::from_translation(centre.as_vec3()));
         let depth = cast(&sensor, &mesh, Skipping::On);
         let truth = |d: DVec3| {
             let b = d.dot(centre);
             let disc = b * b - centre.length_squared() + rho * rho;
-            if disc < 0.0 {
-                0.0
-            } else {
-                depth_of(&sensor, b - disc.sqrt())
-            }
+            if disc < 0.0 { 0.0 } else { depth_of(&sensor, b - disc.sqrt()) }
         };
         let err = max_error_mm(&sensor, &depth, truth);
         assert!(err < 1e-3, "sphere along {axis}: max error {err} mm");
         // The deepest pixel is the one that looks at the sphere's centre.
         let n = sensor.crop_size_px as usize;
-        let deepest = depth
-            .depth_mm
-            .iter()
-            .enumerate()
-            .max_by(|a, b| a.1.total_cmp(b.1))
-            .unwrap()
-            .0;
+        let deepest = depth.depth_mm.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).unwrap().0;
         let (u, v) = sensor.correspondence.pixel(centre).unwrap();
         let (x0, y0) = sensor.crop_origin_px();
-        let (dx, dy) = (
-            (deepest % n) as f64 - (u - x0 as f64),
-            (deepest / n) as f64 - (v - y0 as f64),
-        );
-        assert!(
-            dx.hypot(dy) < 1.5,
-            "deepest pixel {dx},{dy} px from the centre's pixel"
-        );
+        let (dx, dy) = ((deepest % n) as f64 - (u - x0 as f64), (deepest / n) as f64 - (v - y0 as f64));
+        assert!(dx.hypot(dy) < 1.5, "deepest pixel {dx},{dy} px from the centre's pixel");
         assert!((depth.max_mm() as f64 - pressed).abs() < 1e-3);
     }
 }
@@ -97,16 +75,14 @@ fn pressed_plate_gives_r_minus_r_minus_z_over_cos_theta() {
     let sensor = Sensor::default();
     for z in [0.5f64, 2.0, 6.0] {
         // A thick plate whose lower face sits at height R - z.
-        let plate = shapes::box_mesh(Vec3::new(120.0, 120.0, 4.0)).transformed(
-            &Affine3A::from_translation(Vec3::new(0.0, 0.0, (sensor.radius_mm - z) as f32 + 2.0)),
-        );
+        let plate = shapes::box_mesh(Vec3::new(120.0, 120.0, 4.0)).transformed(&Affine3A::from_translation(Vec3::new(
+            0.0,
+            0.0,
+            (sensor.radius_mm - z) as f32 + 2.0,
+        )));
         let depth = cast(&sensor, &plate, Skipping::On);
         let truth = |d: DVec3| {
-            if d.z > 0.0 {
-                depth_of(&sensor, (sensor.radius_mm - z) / d.z)
-            } else {
-                0.0
-            }
+            if d.z > 0.0 { depth_of(&sensor, (sensor.radius_mm - z) / d.z) } else { 0.0 }
         };
         let err = max_error_mm(&sensor, &depth, truth);
         assert!(err < 1e-4, "plate pressed {z} mm: max error {err} mm");
@@ -120,32 +96,18 @@ fn deep_presses_clip_at_the_maximum_depth() {
         .transformed(&Affine3A::from_translation(Vec3::new(0.0, 0.0, 12.0)));
     let depth = cast(&sensor, &plate, Skipping::On);
     assert_eq!(depth.max_mm(), sensor.max_depth_mm as f32);
-    assert!(
-        depth
-            .depth_mm
-            .iter()
-            .all(|&d| (0.0..=sensor.max_depth_mm as f32).contains(&d))
-    );
+    assert!(depth.depth_mm.iter().all(|&d| (0.0..=sensor.max_depth_mm as f32).contains(&d)));
 }
 
 #[test]
 fn skipping_changes_nothing_on_analytic_scenes() {
     let sensor = Sensor::default();
-    let sphere = shapes::sphere(6.0, 96)
-        .transformed(&Affine3A::from_translation(Vec3::new(5.0, -3.0, 28.0)));
+    let sphere = shapes::sphere(6.0, 96).transformed(&Affine3A::from_translation(Vec3::new(5.0, -3.0, 28.0)));
     let plate = shapes::box_mesh(Vec3::new(120.0, 120.0, 4.0))
         .transformed(&Affine3A::from_translation(Vec3::new(0.0, 0.0, 25.0)));
     for mesh in [sphere, plate] {
-        let (on, off) = (
-            cast(&sensor, &mesh, Skipping::On),
-            cast(&sensor, &mesh, Skipping::Off),
-        );
-        let differing = on
-            .depth_mm
-            .iter()
-            .zip(&off.depth_mm)
-            .filter(|(a, b)| a != b)
-            .count();
+        let (on, off) = (cast(&sensor, &mesh, Skipping::On), cast(&sensor, &mesh, Skipping::Off));
+        let differing = on.depth_mm.iter().zip(&off.depth_mm).filter(|(a, b)| a != b).count();
         assert_eq!(differing, 0, "skipping changed {differing} pixels");
         assert!(on.max_mm() > 0.0);
     }

@@ -8,15 +8,7 @@ const BIN: &str = env!("CARGO_BIN_EXE_dataset");
 
 fn generate(out: &Path, count: u32, extra: &[&str]) -> std::process::Output {
     Command::new(BIN)
-        .args([
-            "generate",
-            "--out",
-            out.to_str().unwrap(),
-            "--count",
-            &count.to_string(),
-            "--seed",
-            "11",
-        ])
+        .args(["generate", "--out", out.to_str().unwrap(), "--count", &count.to_string(), "--seed", "11"])
         .args(extra)
         .output()
         .unwrap()
@@ -25,18 +17,12 @@ fn generate(out: &Path, count: u32, extra: &[&str]) -> std::process::Output {
 fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
     let mut out = Vec::new();
     for sub in ["", "samples", "depth"] {
-        let mut names: Vec<_> = std::fs::read_dir(dir.join(sub))
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .filter(|p| p.is_file())
-            .collect();
+        let mut names: Vec<_> =
+            std::fs::read_dir(dir.join(sub)).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_file()).collect();
         names.sort();
-        out.extend(names.into_iter().map(|p| {
-            (
-                p.strip_prefix(dir).unwrap().display().to_string(),
-                std::fs::read(&p).unwrap(),
-            )
-        }));
+        out.extend(
+            names.into_iter().map(|p| (p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap())),
+        );
     }
     out
 }
@@ -49,24 +35,14 @@ fn killed_and_resumed_run_equals_an_uninterrupted_one() {
 
     // Kill -9 once some samples are done.
     let mut child = Command::new(BIN)
-        .args([
-            "generate",
-            "--out",
-            a.to_str().unwrap(),
-            "--count",
-            &count.to_string(),
-            "--seed",
-            "11",
-        ])
+        .args(["generate", "--out", a.to_str().unwrap(), "--count", &count.to_string(), "--seed", "11"])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
     let start = Instant::now();
     loop {
-        let done = std::fs::read_dir(a.join("samples"))
-            .map(|d| d.count())
-            .unwrap_or(0);
+        let done = std::fs::read_dir(a.join("samples")).map(|d| d.count()).unwrap_or(0);
         if done >= 10 {
             break;
         }
@@ -75,24 +51,14 @@ fn killed_and_resumed_run_equals_an_uninterrupted_one() {
     }
     child.kill().unwrap();
     child.wait().unwrap();
-    assert!(
-        !a.join("manifest.json").exists(),
-        "the run finished before it could be killed"
-    );
+    assert!(!a.join("manifest.json").exists(), "the run finished before it could be killed");
     // A half-written file as a kill could leave it.
     std::fs::write(a.join("depth/.000399.png.1234.tmp"), b"half").unwrap();
 
     let resumed = generate(&a, count, &[]);
-    assert!(
-        resumed.status.success(),
-        "{}",
-        String::from_utf8_lossy(&resumed.stderr)
-    );
+    assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
     let stdout = String::from_utf8_lossy(&resumed.stdout);
-    assert!(
-        stdout.contains("from an earlier run") && stdout.contains("contact"),
-        "{stdout}"
-    );
+    assert!(stdout.contains("from an earlier run") && stdout.contains("contact"), "{stdout}");
 
     let fresh = generate(&b, count, &[]);
     assert!(fresh.status.success());
@@ -101,19 +67,11 @@ fn killed_and_resumed_run_equals_an_uninterrupted_one() {
     assert_eq!(fa.len(), 2 + 2 * count as usize);
     for ((na, ca), (nb, cb)) in fa.iter().zip(&fb) {
         assert_eq!(na, nb);
-        assert!(
-            ca == cb,
-            "{na} differs between the resumed and the uninterrupted run"
-        );
+        assert!(ca == cb, "{na} differs between the resumed and the uninterrupted run");
     }
     let manifest = dataset::format::Manifest::load(&a).unwrap();
     assert_eq!(manifest.samples.len(), count as usize);
-    assert!(
-        manifest
-            .summary
-            .values()
-            .all(|s| s.samples > 0 && s.mean_contact_fraction > 0.0)
-    );
+    assert!(manifest.summary.values().all(|s| s.samples > 0 && s.mean_contact_fraction > 0.0));
 }
 
 #[test]
@@ -128,10 +86,7 @@ fn bad_arguments_and_mismatched_folders_fail_clearly() {
     let r = generate(&out, 3, &["--z-max-mm", "1.0"]);
     assert!(!r.status.success());
     let err = String::from_utf8_lossy(&r.stderr);
-    assert!(
-        err.contains("generator.json") && err.contains("other parameters"),
-        "{err}"
-    );
+    assert!(err.contains("generator.json") && err.contains("other parameters"), "{err}");
 
     let r = generate(&tmp.path().join("e"), 3, &["--kit", "/nonexistent/kit"]);
     assert!(!r.status.success());
@@ -139,11 +94,7 @@ fn bad_arguments_and_mismatched_folders_fail_clearly() {
 
     let bad_sensor = tmp.path().join("sensor.json");
     std::fs::write(&bad_sensor, "{\"radius_mm\": 25}").unwrap();
-    let r = generate(
-        &tmp.path().join("f"),
-        3,
-        &["--sensor", bad_sensor.to_str().unwrap()],
-    );
+    let r = generate(&tmp.path().join("f"), 3, &["--sensor", bad_sensor.to_str().unwrap()]);
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("sensor.json"));
 }

@@ -26,10 +26,7 @@ pub enum RadialMap {
     KannalaBrandt { focal_px_per_rad: f64, k: [f64; 4] },
     /// Piecewise-linear table, strictly increasing in both columns; starts at (0, 0).
     /// What a calibration exports.
-    Tabulated {
-        radius_px: Vec<f64>,
-        theta_rad: Vec<f64>,
-    },
+    Tabulated { radius_px: Vec<f64>, theta_rad: Vec<f64> },
 }
 
 impl RadialMap {
@@ -42,10 +39,7 @@ impl RadialMap {
         match self {
             RadialMap::Equidistant { focal_px_per_rad } => Some(r_px / focal_px_per_rad),
             RadialMap::KannalaBrandt { .. } => self.invert_polynomial(r_px),
-            RadialMap::Tabulated {
-                radius_px,
-                theta_rad,
-            } => interpolate(radius_px, theta_rad, r_px),
+            RadialMap::Tabulated { radius_px, theta_rad } => interpolate(radius_px, theta_rad, r_px),
         }
     }
 
@@ -56,24 +50,14 @@ impl RadialMap {
         }
         match self {
             RadialMap::Equidistant { focal_px_per_rad } => Some(theta_rad * focal_px_per_rad),
-            RadialMap::KannalaBrandt {
-                focal_px_per_rad,
-                k,
-            } => Some(focal_px_per_rad * kb_poly(k, theta_rad)),
-            RadialMap::Tabulated {
-                radius_px,
-                theta_rad: th,
-            } => interpolate(th, radius_px, theta_rad),
+            RadialMap::KannalaBrandt { focal_px_per_rad, k } => Some(focal_px_per_rad * kb_poly(k, theta_rad)),
+            RadialMap::Tabulated { radius_px, theta_rad: th } => interpolate(th, radius_px, theta_rad),
         }
     }
 
     /// Newton iteration on the Kannala-Brandt polynomial, started from the equidistant guess.
     fn invert_polynomial(&self, r_px: f64) -> Option<f64> {
-        let RadialMap::KannalaBrandt {
-            focal_px_per_rad: f,
-            k,
-        } = self
-        else {
+        let RadialMap::KannalaBrandt { focal_px_per_rad: f, k } = self else {
             return None;
         };
         let target = r_px / f;
@@ -97,24 +81,15 @@ impl RadialMap {
     pub fn validate(&self, r_max_px: f64) -> Result<(), SensorError> {
         let bad = |why: String| Err(SensorError::Invalid(format!("radial map: {why}")));
         match self {
-            RadialMap::Equidistant {
-                focal_px_per_rad: f,
-            }
-            | RadialMap::KannalaBrandt {
-                focal_px_per_rad: f,
-                ..
-            } if !(f.is_finite() && *f > 0.0) => {
-                return bad(format!(
-                    "focal length must be a positive number of px/rad, got {f}"
-                ));
+            RadialMap::Equidistant { focal_px_per_rad: f } | RadialMap::KannalaBrandt { focal_px_per_rad: f, .. }
+                if !(f.is_finite() && *f > 0.0) =>
+            {
+                return bad(format!("focal length must be a positive number of px/rad, got {f}"));
             }
             RadialMap::KannalaBrandt { k, .. } if k.iter().any(|c| !c.is_finite()) => {
                 return bad(format!("coefficients must be finite, got {k:?}"));
             }
-            RadialMap::Tabulated {
-                radius_px,
-                theta_rad,
-            } => {
+            RadialMap::Tabulated { radius_px, theta_rad } => {
                 if radius_px.len() != theta_rad.len() || radius_px.len() < 2 {
                     return bad(format!(
                         "table needs two columns of equal length >= 2, got {} and {}",
@@ -144,9 +119,7 @@ impl RadialMap {
             // Monotone where used: the slope stays positive up to the crop's corner.
             let theta_end = self.theta_of_radius(r_max_px);
             let Some(theta_end) = theta_end else {
-                return bad(format!(
-                    "polynomial is not invertible up to radius {r_max_px:.1} px"
-                ));
+                return bad(format!("polynomial is not invertible up to radius {r_max_px:.1} px"));
             };
             let steps = 256;
             for i in 0..=steps {
@@ -198,11 +171,7 @@ impl Correspondence {
         let theta = self.radial.theta_of_radius(r)?;
         let (sin_t, cos_t) = theta.sin_cos();
         // On the axis the azimuth is undefined; any value gives the same direction.
-        let (sin_p, cos_p) = if r > 0.0 {
-            (dv / r, du / r)
-        } else {
-            (0.0, 1.0)
-        };
+        let (sin_p, cos_p) = if r > 0.0 { (dv / r, du / r) } else { (0.0, 1.0) };
         Some((DVec3::new(sin_t * cos_p, sin_t * sin_p, cos_t), theta))
     }
 
@@ -215,10 +184,7 @@ impl Correspondence {
         let theta = (dir.z / len).clamp(-1.0, 1.0).acos();
         let r = self.radial.radius_of_theta(theta)?;
         let phi = dir.y.atan2(dir.x);
-        Some((
-            self.centre_u_px + r * phi.cos(),
-            self.centre_v_px + r * phi.sin(),
-        ))
+        Some((self.centre_u_px + r * phi.cos(), self.centre_v_px + r * phi.sin()))
     }
 
     /// `(theta, phi)` in radians for frame pixel `(u, v)`; `phi = atan2(v - v_c, u - u_c)`.
@@ -234,71 +200,40 @@ mod tests {
     use super::*;
 
     fn kb() -> RadialMap {
-        RadialMap::KannalaBrandt {
-            focal_px_per_rad: 185.0,
-            k: [-0.02, 0.003, 0.0, 0.0],
-        }
+        RadialMap::KannalaBrandt { focal_px_per_rad: 185.0, k: [-0.02, 0.003, 0.0, 0.0] }
     }
 
     #[test]
     fn maps_invert_each_other() {
-        let table = RadialMap::Tabulated {
-            radius_px: vec![0.0, 100.0, 250.0, 400.0],
-            theta_rad: vec![0.0, 0.55, 1.3, 2.0],
-        };
-        for map in [
-            RadialMap::Equidistant {
-                focal_px_per_rad: 180.0,
-            },
-            kb(),
-            table,
-        ] {
+        let table =
+            RadialMap::Tabulated { radius_px: vec![0.0, 100.0, 250.0, 400.0], theta_rad: vec![0.0, 0.55, 1.3, 2.0] };
+        for map in [RadialMap::Equidistant { focal_px_per_rad: 180.0 }, kb(), table] {
             map.validate(400.0).unwrap();
             for i in 0..=100 {
                 let r = 3.9 * i as f64;
                 let t = map.theta_of_radius(r).unwrap();
                 let back = map.radius_of_theta(t).unwrap();
-                assert!(
-                    (back - r).abs() < 1e-7,
-                    "{map:?}: r {r} -> theta {t} -> r {back}"
-                );
+                assert!((back - r).abs() < 1e-7, "{map:?}: r {r} -> theta {t} -> r {back}");
             }
         }
     }
 
     #[test]
     fn pixel_and_direction_round_trip() {
-        let c = Correspondence {
-            centre_u_px: 401.3,
-            centre_v_px: 297.8,
-            radial: kb(),
-        };
-        for (u, v) in [
-            (401.3, 297.8),
-            (500.0, 300.0),
-            (120.0, 40.0),
-            (690.2, 580.9),
-            (401.3, 20.0),
-        ] {
+        let c = Correspondence { centre_u_px: 401.3, centre_v_px: 297.8, radial: kb() };
+        for (u, v) in [(401.3, 297.8), (500.0, 300.0), (120.0, 40.0), (690.2, 580.9), (401.3, 20.0)] {
             let (d, theta) = c.direction(u, v).unwrap();
             assert!((d.length() - 1.0).abs() < 1e-12);
             assert!((d.z.acos() - theta).abs() < 1e-9);
             let (u2, v2) = c.pixel(d).unwrap();
-            assert!(
-                (u2 - u).abs() < 1e-7 && (v2 - v).abs() < 1e-7,
-                "({u},{v}) -> ({u2},{v2})"
-            );
+            assert!((u2 - u).abs() < 1e-7 && (v2 - v).abs() < 1e-7, "({u},{v}) -> ({u2},{v2})");
         }
     }
 
     #[test]
     fn image_axes_match_sensor_axes() {
         // Right of the centre looks towards +x, below it towards +y.
-        let c = Correspondence {
-            centre_u_px: 400.0,
-            centre_v_px: 300.0,
-            radial: kb(),
-        };
+        let c = Correspondence { centre_u_px: 400.0, centre_v_px: 300.0, radial: kb() };
         let (right, _) = c.direction(500.0, 300.0).unwrap();
         let (down, _) = c.direction(400.0, 400.0).unwrap();
         assert!(right.x > 0.0 && right.y.abs() < 1e-12);
@@ -307,40 +242,13 @@ mod tests {
 
     #[test]
     fn invalid_maps_are_rejected() {
-        let flat = RadialMap::Tabulated {
-            radius_px: vec![0.0, 10.0, 10.0],
-            theta_rad: vec![0.0, 0.1, 0.2],
-        };
+        let flat = RadialMap::Tabulated { radius_px: vec![0.0, 10.0, 10.0], theta_rad: vec![0.0, 0.1, 0.2] };
         assert!(flat.validate(5.0).is_err());
-        let short = RadialMap::Tabulated {
-            radius_px: vec![0.0, 10.0],
-            theta_rad: vec![0.0, 0.1],
-        };
-        assert!(
-            short
-                .validate(50.0)
-                .unwrap_err()
-                .to_string()
-                .contains("crop reaches")
-        );
-        let folding = RadialMap::KannalaBrandt {
-            focal_px_per_rad: 180.0,
-            k: [-0.5, 0.0, 0.0, 0.0],
-        };
+        let short = RadialMap::Tabulated { radius_px: vec![0.0, 10.0], theta_rad: vec![0.0, 0.1] };
+        assert!(short.validate(50.0).unwrap_err().to_string().contains("crop reaches"));
+        let folding = RadialMap::KannalaBrandt { focal_px_per_rad: 180.0, k: [-0.5, 0.0, 0.0, 0.0] };
         assert!(folding.validate(300.0).is_err());
-        assert!(
-            RadialMap::Equidistant {
-                focal_px_per_rad: f64::NAN
-            }
-            .validate(1.0)
-            .is_err()
-        );
-        assert!(
-            RadialMap::Equidistant {
-                focal_px_per_rad: 1.0
-            }
-            .theta_of_radius(-1.0)
-            .is_none()
-        );
+        assert!(RadialMap::Equidistant { focal_px_per_rad: f64::NAN }.validate(1.0).is_err());
+        assert!(RadialMap::Equidistant { focal_px_per_rad: 1.0 }.theta_of_radius(-1.0).is_none());
     }
 }

@@ -19,10 +19,7 @@ pub const PNG_UM_PER_STEP: f32 = 1.0;
 
 impl DepthMap {
     pub fn zeros(size_px: u32) -> Self {
-        DepthMap {
-            size_px,
-            depth_mm: vec![0.0; (size_px as usize).pow(2)],
-        }
+        DepthMap { size_px, depth_mm: vec![0.0; (size_px as usize).pow(2)] }
     }
 
     pub fn max_mm(&self) -> f32 {
@@ -31,31 +28,23 @@ impl DepthMap {
 
     /// Encodes as 16-bit grey PNG in micrometres (rounded): lossless at 0.5 um.
     pub fn to_png_um(&self) -> Vec<u8> {
-        let px: Vec<u16> = self
-            .depth_mm
-            .iter()
-            .map(|&d| (d * 1000.0 / PNG_UM_PER_STEP).round().clamp(0.0, 65535.0) as u16)
-            .collect();
+        let px: Vec<u16> =
+            self.depth_mm.iter().map(|&d| (d * 1000.0 / PNG_UM_PER_STEP).round().clamp(0.0, 65535.0) as u16).collect();
         let img: ImageBuffer<Luma<u16>, Vec<u16>> =
             ImageBuffer::from_raw(self.size_px, self.size_px, px).expect("square buffer");
         let mut out = std::io::Cursor::new(Vec::new());
-        img.write_to(&mut out, image::ImageFormat::Png)
-            .expect("in-memory PNG encode");
+        img.write_to(&mut out, image::ImageFormat::Png).expect("in-memory PNG encode");
         out.into_inner()
     }
 
     /// The paper's 8-bit encoding: 0..255 spans 0..`max_depth_mm` (about 0.037 mm a step).
     pub fn to_png_u8(&self, max_depth_mm: f32) -> Vec<u8> {
-        let px: Vec<u8> = self
-            .depth_mm
-            .iter()
-            .map(|&d| (d / max_depth_mm * 255.0).round().clamp(0.0, 255.0) as u8)
-            .collect();
+        let px: Vec<u8> =
+            self.depth_mm.iter().map(|&d| (d / max_depth_mm * 255.0).round().clamp(0.0, 255.0) as u8).collect();
         let img: ImageBuffer<Luma<u8>, Vec<u8>> =
             ImageBuffer::from_raw(self.size_px, self.size_px, px).expect("square buffer");
         let mut out = std::io::Cursor::new(Vec::new());
-        img.write_to(&mut out, image::ImageFormat::Png)
-            .expect("in-memory PNG encode");
+        img.write_to(&mut out, image::ImageFormat::Png).expect("in-memory PNG encode");
         out.into_inner()
     }
 
@@ -66,32 +55,18 @@ impl DepthMap {
 
     /// Reads a 16-bit micrometre PNG; the error names the file and what is wrong with it.
     pub fn load_png_um(path: &Path) -> Result<Self, SensorError> {
-        let bad = |message: String| SensorError::InFile {
-            path: path.to_path_buf(),
-            message,
-        };
+        let bad = |message: String| SensorError::InFile { path: path.to_path_buf(), message };
         let bytes = std::fs::read(path).map_err(|e| SensorError::io(path, e))?;
         let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
             .map_err(|e| bad(format!("not a readable PNG: {e}")))?;
         let image::DynamicImage::ImageLuma16(img) = img else {
-            return Err(bad(format!(
-                "expected a 16-bit greyscale depth PNG, got {:?}",
-                img.color()
-            )));
+            return Err(bad(format!("expected a 16-bit greyscale depth PNG, got {:?}", img.color())));
         };
         if img.width() != img.height() {
-            return Err(bad(format!(
-                "depth map must be square, got {}x{}",
-                img.width(),
-                img.height()
-            )));
+            return Err(bad(format!("depth map must be square, got {}x{}", img.width(), img.height())));
         }
         let size_px = img.width();
-        let depth_mm = img
-            .into_raw()
-            .into_iter()
-            .map(|v| v as f32 * PNG_UM_PER_STEP / 1000.0)
-            .collect();
+        let depth_mm = img.into_raw().into_iter().map(|v| v as f32 * PNG_UM_PER_STEP / 1000.0).collect();
         Ok(DepthMap { size_px, depth_mm })
     }
 }

@@ -32,10 +32,7 @@ pub fn write_atomic_with(
 /// The temporary name used while `path` is written: same folder (so rename is atomic),
 /// unique per process, ending in `.tmp` so that cleanup can recognise leftovers.
 pub fn temp_path(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
 
@@ -58,8 +55,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("a.txt");
         write_atomic(&path, b"kept").unwrap();
-        let err =
-            write_atomic_with(&path, |_| Err(std::io::Error::other("disk full"))).unwrap_err();
+        let err = write_atomic_with(&path, |_| Err(std::io::Error::other("disk full"))).unwrap_err();
         assert!(err.to_string().contains("a.txt"));
         assert_eq!(std::fs::read(&path).unwrap(), b"kept");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);

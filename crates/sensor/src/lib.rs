@@ -20,15 +20,9 @@ pub use sensor::{DEFAULT_FOCAL_PX_PER_RAD, PixelRay, SENSOR_FORMAT_VERSION, Sens
 #[derive(Debug, thiserror::Error)]
 pub enum SensorError {
     #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    Io { path: PathBuf, source: std::io::Error },
     #[error("{path}: not a valid sensor description: {source}")]
-    Json {
-        path: PathBuf,
-        source: serde_json::Error,
-    },
+    Json { path: PathBuf, source: serde_json::Error },
     #[error("invalid sensor description: {0}")]
     Invalid(String),
     #[error("{path}: {message}")]
@@ -37,19 +31,13 @@ pub enum SensorError {
 
 impl SensorError {
     pub fn io(path: &Path, source: std::io::Error) -> Self {
-        SensorError::Io {
-            path: path.to_path_buf(),
-            source,
-        }
+        SensorError::Io { path: path.to_path_buf(), source }
     }
 
     /// Attaches the file name to an error found while checking that file's content.
     pub fn in_file(self, path: &Path) -> Self {
         match self {
-            SensorError::Invalid(message) => SensorError::InFile {
-                path: path.to_path_buf(),
-                message,
-            },
+            SensorError::Invalid(message) => SensorError::InFile { path: path.to_path_buf(), message },
             other => other,
         }
     }

@@ -61,9 +61,7 @@ impl Sensor {
             correspondence: Correspondence {
                 centre_u_px: 399.5,
                 centre_v_px: 299.5,
-                radial: RadialMap::Equidistant {
-                    focal_px_per_rad: DEFAULT_FOCAL_PX_PER_RAD,
-                },
+                radial: RadialMap::Equidistant { focal_px_per_rad: DEFAULT_FOCAL_PX_PER_RAD },
             },
         }
     }
@@ -98,10 +96,7 @@ impl Sensor {
             ));
         }
         if !(self.radius_mm.is_finite() && self.radius_mm > 0.0 && self.radius_mm < 1000.0) {
-            return bad(format!(
-                "radius_mm must be in (0, 1000) mm, got {}",
-                self.radius_mm
-            ));
+            return bad(format!("radius_mm must be in (0, 1000) mm, got {}", self.radius_mm));
         }
         if !(self.max_depth_mm > 0.0 && self.max_depth_mm < self.radius_mm) {
             return bad(format!(
@@ -110,14 +105,9 @@ impl Sensor {
             ));
         }
         if !(self.max_theta_rad > 0.0 && self.max_theta_rad < std::f64::consts::PI) {
-            return bad(format!(
-                "max_theta_rad must be in (0, pi), got {}",
-                self.max_theta_rad
-            ));
+            return bad(format!("max_theta_rad must be in (0, pi), got {}", self.max_theta_rad));
         }
-        if self.crop_size_px == 0
-            || self.crop_size_px > self.frame_width_px
-            || self.crop_size_px > self.frame_height_px
+        if self.crop_size_px == 0 || self.crop_size_px > self.frame_width_px || self.crop_size_px > self.frame_height_px
         {
             return bad(format!(
                 "crop of {} px does not fit the {}x{} frame",
@@ -126,11 +116,7 @@ impl Sensor {
         }
         let (x0, y0) = self.crop_origin_px();
         let n = self.crop_size_px as i64;
-        if x0 < 0
-            || y0 < 0
-            || x0 + n > self.frame_width_px as i64
-            || y0 + n > self.frame_height_px as i64
-        {
+        if x0 < 0 || y0 < 0 || x0 + n > self.frame_width_px as i64 || y0 + n > self.frame_height_px as i64 {
             return bad(format!(
                 "crop at ({x0}, {y0}) of {n} px around the optical centre ({:.1}, {:.1}) leaves the {}x{} frame",
                 self.correspondence.centre_u_px,
@@ -153,12 +139,7 @@ impl Sensor {
     /// Mask of useful crop pixels (row-major): those that see the elastomer (`theta <= max`).
     pub fn valid_mask(&self) -> Vec<bool> {
         let n = self.crop_size_px;
-        (0..n * n)
-            .map(|i| {
-                self.crop_theta(i % n, i / n)
-                    .is_some_and(|t| t <= self.max_theta_rad)
-            })
-            .collect()
+        (0..n * n).map(|i| self.crop_theta(i % n, i / n).is_some_and(|t| t <= self.max_theta_rad)).collect()
     }
 
     /// Number of useful pixels (the paper's sensor has 253,213).
@@ -176,10 +157,7 @@ impl Sensor {
                 if let Some((dir, theta)) = self.correspondence.direction(u, v)
                     && theta <= self.max_theta_rad
                 {
-                    rays.push(PixelRay {
-                        index: y * n + x,
-                        dir: dir.as_vec3(),
-                    });
+                    rays.push(PixelRay { index: y * n + x, dir: dir.as_vec3() });
                 }
             }
         }
@@ -194,10 +172,8 @@ impl Sensor {
     /// Reads and validates a JSON sensor description.
     pub fn load_json(path: &Path) -> Result<Self, SensorError> {
         let text = std::fs::read_to_string(path).map_err(|e| SensorError::io(path, e))?;
-        let sensor: Sensor = serde_json::from_str(&text).map_err(|e| SensorError::Json {
-            path: path.to_path_buf(),
-            source: e,
-        })?;
+        let sensor: Sensor =
+            serde_json::from_str(&text).map_err(|e| SensorError::Json { path: path.to_path_buf(), source: e })?;
         sensor.validate().map_err(|e| e.in_file(path))?;
         Ok(sensor)
     }
@@ -217,17 +193,11 @@ mod tests {
     fn default_sensor_matches_the_paper() {
         let s = Sensor::default();
         s.validate().unwrap();
-        assert_eq!(
-            (s.frame_width_px, s.frame_height_px, s.crop_size_px),
-            (800, 600, 570)
-        );
+        assert_eq!((s.frame_width_px, s.frame_height_px, s.crop_size_px), (800, 600, 570));
         assert_eq!(s.crop_origin_px(), (115, 15));
         let count = s.valid_count();
         // The paper counts 253,213 useful pixels; our default fisheye is tuned to it.
-        assert!(
-            (count as i64 - 253_213).abs() < 300,
-            "useful pixels: {count}"
-        );
+        assert!((count as i64 - 253_213).abs() < 300, "useful pixels: {count}");
         assert_eq!(s.pixel_rays().len(), count);
     }
 
@@ -252,10 +222,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("sensor.json");
         let mut s = Sensor::with_radius(15.0);
-        s.correspondence.radial = RadialMap::KannalaBrandt {
-            focal_px_per_rad: 178.0,
-            k: [0.01, -0.002, 0.0, 0.0],
-        };
+        s.correspondence.radial = RadialMap::KannalaBrandt { focal_px_per_rad: 178.0, k: [0.01, -0.002, 0.0, 0.0] };
         s.save_json(&path).unwrap();
         assert_eq!(Sensor::load_json(&path).unwrap(), s);
 
@@ -263,24 +230,13 @@ mod tests {
         let err = Sensor::load_json(&path).unwrap_err().to_string();
         assert!(err.contains("sensor.json"), "{err}");
 
-        let newer = Sensor {
-            format_version: 99,
-            ..Sensor::default()
-        };
+        let newer = Sensor { format_version: 99, ..Sensor::default() };
         std::fs::write(&path, serde_json::to_string(&newer).unwrap()).unwrap();
         let err = Sensor::load_json(&path).unwrap_err().to_string();
-        assert!(
-            err.contains("sensor.json") && err.contains("newer"),
-            "{err}"
-        );
+        assert!(err.contains("sensor.json") && err.contains("newer"), "{err}");
 
         let mut off = Sensor::default();
         off.correspondence.centre_u_px = 30.0;
-        assert!(
-            off.validate()
-                .unwrap_err()
-                .to_string()
-                .contains("leaves the 800x600 frame")
-        );
+        assert!(off.validate().unwrap_err().to_string().contains("leaves the 800x600 frame"));
     }
 }
