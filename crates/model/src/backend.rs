@@ -11,6 +11,14 @@ pub fn default_device() -> Device {
     Device::flex()
 }
 
+/// burn-ndarray, deprecated in Burn 0.22 and about 12x slower than flex here; built only with
+/// the `ndarray` feature, for comparisons.
+#[cfg(feature = "ndarray")]
+#[allow(deprecated)]
+pub fn ndarray_device() -> Device {
+    Device::ndarray()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
