@@ -164,6 +164,11 @@ impl Sensor {
         rays
     }
 
+    /// The paper's form of the correspondence: image radius (px) -> `R * sin(theta)` (mm).
+    pub fn r_sin_theta_mm(&self, r_px: f64) -> Option<f64> {
+        self.correspondence.radial.theta_of_radius(r_px).map(|t| self.radius_mm * t.sin())
+    }
+
     /// Point on the undeformed surface pressed in by `depth_mm` along `dir` (sensor frame, mm).
     pub fn surface_point_mm(&self, dir: DVec3, depth_mm: f64) -> DVec3 {
         dir.normalize() * (self.radius_mm - depth_mm)
@@ -199,6 +204,10 @@ mod tests {
         // The paper counts 253,213 useful pixels; our default fisheye is tuned to it.
         assert!((count as i64 - 253_213).abs() < 300, "useful pixels: {count}");
         assert_eq!(s.pixel_rays().len(), count);
+        // The useful disk ends at the equator: R sin(theta) reaches R there.
+        let r_edge = s.correspondence.radial.radius_of_theta(s.max_theta_rad).unwrap();
+        assert!((s.r_sin_theta_mm(r_edge).unwrap() - 25.0).abs() < 1e-9);
+        assert!((s.r_sin_theta_mm(0.0).unwrap()).abs() < 1e-12);
     }
 
     #[test]
