@@ -72,13 +72,23 @@ impl OriginTriangle {
     /// `[0, t_max]`; infinity otherwise.
     #[inline(always)]
     fn intersect(&self, d: Vec3A, t_max: f32) -> f32 {
-        let mut s0 = dot3(d, self.e01);
-        let mut s1 = dot3(d, self.e12);
-        let mut s2 = dot3(d, self.e20);
-        let bound = self.sign_bound;
-        if s0.abs() <= bound || s1.abs() <= bound || s2.abs() <= bound {
-            [s0, s1, s2] = self.exact_signs(d);
+        self.intersect_fast(d, t_max).unwrap_or_else(|| self.finish(self.exact_signs(d), d, t_max))
+    }
+
+    /// The f32 test: the hit distance (or infinity) when every edge sign is certain, `None`
+    /// when one lies within its rounding bound of zero.
+    #[inline(always)]
+    fn intersect_fast(&self, d: Vec3A, t_max: f32) -> Option<f32> {
+        let s = [dot3(d, self.e01), dot3(d, self.e12), dot3(d, self.e20)];
+        if s.iter().any(|x| x.abs() <= self.sign_bound) {
+            return None;
         }
+        Some(self.finish(s, d, t_max))
+    }
+
+    /// Hit distance from the three edge signs: inside when all agree.
+    #[inline(always)]
+    fn finish(&self, [s0, s1, s2]: [f32; 3], d: Vec3A, t_max: f32) -> f32 {
         let inside = (s0 >= 0.0 && s1 >= 0.0 && s2 >= 0.0) || (s0 <= 0.0 && s1 <= 0.0 && s2 <= 0.0);
         let den = dot3(d, self.normal);
         if inside && den != 0.0 {
@@ -273,7 +283,7 @@ impl Lanes {
             if self.group_reach[g] < near {
                 continue;
             }
-            ambiguous |= K::test_group(&self.x[g], &self.y[g], &self.z[g], &mut self.best[g], tri);
+            ambiguous |= K::test_group(self, g, tri);
             self.group_reach[g] = max8(&self.best[g]);
         }
         ambiguous
@@ -285,12 +295,10 @@ impl Lanes {
         for i in 0..LANES {
             let (g, k) = (i / GROUP, i % GROUP);
             let d = Vec3A::new(self.x[g][k], self.y[g][k], self.z[g][k]);
-            let bound = tri.sign_bound;
-            let amb =
-                dot3(d, tri.e01).abs() <= bound || dot3(d, tri.e12).abs() <= bound || dot3(d, tri.e20).abs() <= bound;
             let best = self.best[g][k];
-            if amb && best >= 0.0 {
-                let t = tri.intersect(d, best);
+            // Only the lanes the fast test could not decide.
+            if best >= 0.0 && tri.intersect_fast(d, best).is_none() {
+                let t = tri.finish(tri.exact_signs(d), d, best);
                 if t <= best {
                     self.best[g][k] = t;
                     self.group_reach[g] = max8(&self.best[g]);
@@ -303,13 +311,7 @@ impl Lanes {
 /// Tests eight rays against one triangle: updates `best` where the f32 edge tests are certain,
 /// and returns whether any lane was too close to an edge plane to tell.
 trait GroupKernel {
-    fn test_group(
-        x: &[f32; GROUP],
-        y: &[f32; GROUP],
-        z: &[f32; GROUP],
-        best: &mut [f32; GROUP],
-        tri: &OriginTriangle,
-    ) -> bool;
+    fn test_group(lanes: &mut Lanes, g: usize, tri: &OriginTriangle) -> bool;
 }
 
 /// Plain Rust, for any CPU.
@@ -317,27 +319,15 @@ struct Portable;
 
 impl GroupKernel for Portable {
     #[inline(always)]
-    fn test_group(
-        x: &[f32; GROUP],
-        y: &[f32; GROUP],
-        z: &[f32; GROUP],
-        best: &mut [f32; GROUP],
-        tri: &OriginTriangle,
-    ) -> bool {
+    fn test_group(lanes: &mut Lanes, g: usize, tri: &OriginTriangle) -> bool {
         let mut ambiguous = false;
         for i in 0..GROUP {
-            let d = Vec3A::new(x[i], y[i], z[i]);
-            let (s0, s1, s2) = (dot3(d, tri.e01), dot3(d, tri.e12), dot3(d, tri.e20));
-            let bound = tri.sign_bound;
-            let amb = s0.abs() <= bound || s1.abs() <= bound || s2.abs() <= bound;
-            ambiguous |= amb;
-            let inside = (s0 >= 0.0 && s1 >= 0.0 && s2 >= 0.0) || (s0 <= 0.0 && s1 <= 0.0 && s2 <= 0.0);
-            let den = dot3(d, tri.normal);
-            if !amb && inside && den != 0.0 {
-                let t = tri.offset / den;
-                if t >= 0.0 && t <= best[i] {
-                    best[i] = t;
-                }
+            let d = Vec3A::new(lanes.x[g][i], lanes.y[g][i], lanes.z[g][i]);
+            let best = &mut lanes.best[g][i];
+            match tri.intersect_fast(d, *best) {
+                Some(t) if t <= *best => *best = t,
+                Some(_) => {}
+                None => ambiguous = true,
             }
         }
         ambiguous
@@ -352,15 +342,9 @@ struct Avx2;
 #[cfg(target_arch = "x86_64")]
 impl GroupKernel for Avx2 {
     #[inline(always)]
-    fn test_group(
-        x: &[f32; GROUP],
-        y: &[f32; GROUP],
-        z: &[f32; GROUP],
-        best: &mut [f32; GROUP],
-        tri: &OriginTriangle,
-    ) -> bool {
+    fn test_group(lanes: &mut Lanes, g: usize, tri: &OriginTriangle) -> bool {
         // SAFETY: only instantiated inside `cast_block_avx2`, which runs after AVX2 was detected.
-        unsafe { avx2_test_group(x, y, z, best, tri) }
+        unsafe { avx2_test_group(&lanes.x[g], &lanes.y[g], &lanes.z[g], &mut lanes.best[g], tri) }
     }
 }
 
