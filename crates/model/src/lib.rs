@@ -1,4 +1,18 @@
-//! DenseDepth for DenseTact on Burn. This crate so far fixes the backend choice; the network,
-//! its loss and the PyTorch import follow.
+//! DenseDepth for DenseTact on Burn: a torchvision-compatible DenseNet encoder with
+//! DenseDepth's skip-connection decoder, its loss, the depth scale, and PyTorch weight import.
 
 pub mod backend;
+pub mod config;
+pub mod decoder;
+pub mod densedepth;
+pub mod densenet;
+pub mod import;
+pub mod loss;
+pub mod scale;
+pub mod upsample;
+
+pub use config::{DenseDepthConfig, DenseNetConfig};
+pub use densedepth::DenseDepth;
+pub use loss::{DepthLoss, DepthLossConfig};
+pub use scale::DepthScale;
+pub use upsample::Upsample;

@@ -1,0 +1,58 @@
+//! The whole network.
+
+use burn::module::Module;
+use burn::tensor::{Device, Tensor};
+
+use crate::config::DenseDepthConfig;
+use crate::decoder::Decoder;
+use crate::densenet::DenseNetEncoder;
+use crate::upsample::Upsample;
+
+/// DenseDepth: RGB image in [0, 1] ([N, 3, H, W], H and W multiples of 32) to depth in
+/// network units at half resolution ([N, 1, H/2, W/2]).
+#[derive(Module, Debug)]
+pub struct DenseDepth {
+    pub encoder: DenseNetEncoder,
+    pub decoder: Decoder,
+}
+
+impl DenseDepthConfig {
+    pub fn init(&self, device: &Device) -> DenseDepth {
+        let (skips, bottleneck) = self.encoder.skip_channels();
+        DenseDepth {
+            encoder: self.encoder.init(device),
+            decoder: Decoder::new(skips, bottleneck, self.decoder_channels(), device),
+        }
+    }
+}
+
+impl DenseDepth {
+    /// Forward pass. Upsampling uses Burn's native bilinear kernel unless gradients are being
+    /// recorded on a backend whose `interpolate` has no backward pass.
+    pub fn forward(&self, images: Tensor<4>) -> Tensor<4> {
+        let mode = upsample_mode_for(&images.device());
+        self.forward_with(images, mode)
+    }
+
+    pub fn forward_with(&self, images: Tensor<4>, mode: Upsample) -> Tensor<4> {
+        let [_, c, h, w] = images.dims();
+        assert!(c == 3, "DenseDepth takes RGB images ([N, 3, H, W]), got {c} channels");
+        assert!(
+            h % DenseDepthConfig::STRIDE == 0 && w % DenseDepthConfig::STRIDE == 0 && h > 0 && w > 0,
+            "input sides must be positive multiples of {}, got {h}x{w}",
+            DenseDepthConfig::STRIDE
+        );
+        self.decoder.forward(self.encoder.forward(images), mode)
+    }
+
+    /// Number of trainable parameters.
+    pub fn parameters(&self) -> usize {
+        self.num_params()
+    }
+}
+
+/// Native upsampling except where autodiff meets a backend without its backward pass
+/// (everything but flex in Burn 0.22).
+pub fn upsample_mode_for(device: &Device) -> Upsample {
+    if device.is_autodiff() && !format!("{device:?}").contains("Flex") { Upsample::Matmul } else { Upsample::Native }
+}

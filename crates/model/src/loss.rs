@@ -1,0 +1,109 @@
+//! DenseDepth's loss: SSIM + image-gradient L1 + L1, weighted (1.0, 1.0, 0.1) by default.
+//!
+//! Definitions follow `shared/fixtures/README.md`: forward differences with a zero last row
+//! and column; SSIM with an 11x11 Gaussian window (sigma 1.5), no padding, `C1 = (0.01 L)^2`,
+//! `C2 = (0.03 L)^2`, `ssim_term = clamp((1 - mean ssim) / 2, 0, 1)`. SSIM statistics are computed
+//! on values divided by `L`, which changes nothing mathematically but keeps squares of depth
+//! units (up to 1e6) out of half-precision range.
+
+use burn::config::Config;
+use burn::tensor::module::conv2d;
+use burn::tensor::ops::ConvOptions;
+use burn::tensor::{Tensor, TensorData};
+
+/// Loss weights and SSIM's dynamic range.
+#[derive(Config, Debug)]
+pub struct DepthLossConfig {
+    #[config(default = 1.0)]
+    pub ssim_weight: f64,
+    #[config(default = 1.0)]
+    pub gradient_weight: f64,
+    #[config(default = 0.1)]
+    pub l1_weight: f64,
+    /// SSIM's `L`: the width of the target's value range (990 for 10..1000).
+    #[config(default = 990.0)]
+    pub dynamic_range: f64,
+}
+
+/// The loss and its three terms (each a scalar tensor).
+pub struct DepthLoss {
+    pub total: Tensor<1>,
+    pub ssim: Tensor<1>,
+    pub gradient: Tensor<1>,
+    pub l1: Tensor<1>,
+}
+
+const WINDOW: usize = 11;
+const SIGMA: f64 = 1.5;
+
+fn gaussian_window() -> Vec<f32> {
+    let g: Vec<f64> = (0..WINDOW).map(|i| (-((i as f64 - 5.0).powi(2)) / (2.0 * SIGMA * SIGMA)).exp()).collect();
+    let sum: f64 = g.iter().sum();
+    (0..WINDOW * WINDOW).map(|k| (g[k / WINDOW] * g[k % WINDOW] / (sum * sum)) as f32).collect()
+}
+
+impl DepthLossConfig {
+    /// Loss over every pixel. `pred` and `target` are [N, 1, H, W] in network units.
+    pub fn forward(&self, pred: Tensor<4>, target: Tensor<4>) -> DepthLoss {
+        self.forward_masked(pred, target, None)
+    }
+
+    /// Loss over the useful pixels only (`mask` is [N, 1, H, W] of 0 and 1): L1 over masked
+    /// pixels, gradients over pairs of masked neighbours, SSIM over windows centred on masked
+    /// pixels. Without a mask, every pixel counts, exactly as the fixture defines it.
+    pub fn forward_masked(&self, pred: Tensor<4>, target: Tensor<4>, mask: Option<Tensor<4>>) -> DepthLoss {
+        let [n, c, h, w] = pred.dims();
+        assert_eq!(c, 1, "depth maps have one channel");
+        assert_eq!(target.dims(), [n, c, h, w], "prediction and target shapes differ");
+        assert!(h >= WINDOW && w >= WINDOW, "SSIM needs at least {WINDOW}x{WINDOW} pixels, got {h}x{w}");
+        let count = (n * h * w) as f32;
+        let diff = pred.clone() - target.clone();
+        let dy = |x: Tensor<4>| x.clone().slice([0..n, 0..1, 1..h, 0..w]) - x.slice([0..n, 0..1, 0..h - 1, 0..w]);
+        let dx = |x: Tensor<4>| x.clone().slice([0..n, 0..1, 0..h, 1..w]) - x.slice([0..n, 0..1, 0..h, 0..w - 1]);
+        let (ey, ex) = ((dy(pred.clone()) - dy(target.clone())).abs(), (dx(pred.clone()) - dx(target.clone())).abs());
+
+        let (l1, gradient, ssim_mean) = match mask {
+            None => {
+                let l1 = diff.abs().sum().div_scalar(count);
+                let gradient = (ey.sum() + ex.sum()).div_scalar(count);
+                let ssim = self.ssim_map(pred, target).mean();
+                (l1, gradient, ssim)
+            }
+            Some(mask) => {
+                let m_sum = mask.clone().sum().clamp_min(1.0);
+                let l1 = (diff.abs() * mask.clone()).sum() / m_sum.clone();
+                let my =
+                    mask.clone().slice([0..n, 0..1, 1..h, 0..w]) * mask.clone().slice([0..n, 0..1, 0..h - 1, 0..w]);
+                let mx =
+                    mask.clone().slice([0..n, 0..1, 0..h, 1..w]) * mask.clone().slice([0..n, 0..1, 0..h, 0..w - 1]);
+                let gradient = ((ey * my).sum() + (ex * mx).sum()) / m_sum;
+                let r = WINDOW / 2;
+                let centres = mask.slice([0..n, 0..1, r..h - r, r..w - r]);
+                let ssim = (self.ssim_map(pred, target) * centres.clone()).sum() / centres.sum().clamp_min(1.0);
+                (l1, gradient, ssim)
+            }
+        };
+        let ssim = ssim_mean.neg().add_scalar(1.0).mul_scalar(0.5).clamp(0.0, 1.0);
+        let total = ssim.clone().mul_scalar(self.ssim_weight)
+            + gradient.clone().mul_scalar(self.gradient_weight)
+            + l1.clone().mul_scalar(self.l1_weight);
+        DepthLoss { total, ssim, gradient, l1 }
+    }
+
+    /// Per-window SSIM ([N, 1, H - 10, W - 10]), computed on values divided by `L`.
+    fn ssim_map(&self, pred: Tensor<4>, target: Tensor<4>) -> Tensor<4> {
+        let device = pred.device();
+        let window = Tensor::<4>::from_data(TensorData::new(gaussian_window(), [1, 1, WINDOW, WINDOW]), &device);
+        let blur = |x: Tensor<4>| conv2d(x, window.clone(), None, ConvOptions::new([1, 1], [0, 0], [1, 1], 1));
+        let inv_l = (1.0 / self.dynamic_range) as f32;
+        let (p, t) = (pred.mul_scalar(inv_l), target.mul_scalar(inv_l));
+        let (mp, mt) = (blur(p.clone()), blur(t.clone()));
+        let spp = blur(p.clone() * p.clone()) - mp.clone() * mp.clone();
+        let stt = blur(t.clone() * t.clone()) - mt.clone() * mt.clone();
+        let spt = blur(p * t) - mp.clone() * mt.clone();
+        let (c1, c2) = (0.01f32 * 0.01, 0.03f32 * 0.03);
+        let num = (mp.clone() * mt.clone()).mul_scalar(2.0).add_scalar(c1) * spt.mul_scalar(2.0).add_scalar(c2);
+        let den = (mp.clone() * mp + mt.clone() * mt).add_scalar(c1) * (spp + stt).add_scalar(c2);
+        num / den
+    }
+}

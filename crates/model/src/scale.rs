@@ -1,0 +1,59 @@
+//! Depth in millimetres <-> network units: the one place the mapping lives.
+//!
+//! The paper rescales its 8-bit depth (0..255 over 0..max depth) to 10..1000 for training;
+//! here the same linear map goes straight from millimetres.
+
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DepthScale {
+    /// Depth (mm) that maps to `net_max`.
+    pub max_depth_mm: f32,
+    /// Network value of zero depth.
+    pub net_min: f32,
+    /// Network value of the maximum depth.
+    pub net_max: f32,
+}
+
+impl DepthScale {
+    /// The paper's mapping: 0..`max_depth_mm` to 10..1000.
+    pub fn paper(max_depth_mm: f32) -> Self {
+        DepthScale { max_depth_mm, net_min: 10.0, net_max: 1000.0 }
+    }
+
+    /// Width of the network's value range (990 for the paper's); SSIM's dynamic range `L`.
+    pub fn range(&self) -> f32 {
+        self.net_max - self.net_min
+    }
+
+    pub fn to_net(&self, depth_mm: f32) -> f32 {
+        self.net_min + self.range() * depth_mm / self.max_depth_mm
+    }
+
+    pub fn to_mm(&self, net: f32) -> f32 {
+        (net - self.net_min) * self.max_depth_mm / self.range()
+    }
+
+    pub fn tensor_to_net<const D: usize>(&self, depth_mm: burn::tensor::Tensor<D>) -> burn::tensor::Tensor<D> {
+        depth_mm.mul_scalar(self.range() / self.max_depth_mm).add_scalar(self.net_min)
+    }
+
+    pub fn tensor_to_mm<const D: usize>(&self, net: burn::tensor::Tensor<D>) -> burn::tensor::Tensor<D> {
+        net.sub_scalar(self.net_min).mul_scalar(self.max_depth_mm / self.range())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn maps_the_paper_range_and_inverts() {
+        let s = DepthScale::paper(9.4);
+        assert_eq!(s.to_net(0.0), 10.0);
+        assert!((s.to_net(9.4) - 1000.0).abs() < 1e-4);
+        for d in [0.0f32, 0.013, 1.0, 4.7, 9.4] {
+            assert!((s.to_mm(s.to_net(d)) - d).abs() < 1e-5);
+        }
+    }
+}
