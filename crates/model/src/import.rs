@@ -18,7 +18,7 @@ use crate::densedepth::DenseDepth;
 pub enum ImportError {
     #[error("{path}: cannot read PyTorch weights: {message}")]
     Read { path: PathBuf, message: String },
-    #[error("{path}: not a DenseNet or DenseDepth state_dict: {message}")]
+    #[error("{path}: not a DenseNet (torchvision) or DenseDepth state_dict: {message}")]
     NotDenseNet { path: PathBuf, message: String },
     #[error("{path}: missing tensor(s): {}", names.join(", "))]
     Missing { path: PathBuf, names: Vec<String> },
@@ -54,6 +54,37 @@ fn open_store(path: &Path) -> PytorchStore {
     KEY_RULES.iter().fold(PytorchStore::from_file(path), |store, (from, to)| store.with_key_remapping(from, *to))
 }
 
+/// A module path in PyTorch's words, for messages: `encoder.denseblock2.layers.1.norm1.gamma`
+/// -> `features.denseblock2.denselayer2.norm1.weight`.
+pub fn torch_name(path: &str) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    let mut after_layers = false;
+    for (i, seg) in path.split('.').enumerate() {
+        let seg = match seg {
+            "encoder" if i == 0 => "features".to_string(),
+            "layers" => {
+                after_layers = true;
+                continue;
+            }
+            s if after_layers => {
+                after_layers = false;
+                s.parse::<usize>().map(|n| format!("denselayer{}", n + 1)).unwrap_or_else(|_| s.to_string())
+            }
+            "gamma" => "weight".to_string(),
+            "beta" => "bias".to_string(),
+            "conv_a" => "convA".to_string(),
+            "conv_b" => "convB".to_string(),
+            s => s.to_string(),
+        };
+        parts.push(seg);
+    }
+    parts.join(".")
+}
+
+fn both_names(path: &str) -> String {
+    format!("{} (PyTorch {})", path, torch_name(path))
+}
+
 /// Tensors a checkpoint may carry that the model does not use.
 fn ignorable(name: &str) -> bool {
     name.ends_with("num_batches_tracked") || name.starts_with("classifier.") || name.contains(".classifier.")
@@ -62,7 +93,7 @@ fn ignorable(name: &str) -> bool {
 /// Reads the DenseNet configuration (and decoder width) off the tensor shapes.
 fn read_config(path: &Path, shapes: &BTreeMap<String, Vec<usize>>) -> Result<(DenseDepthConfig, bool), ImportError> {
     let not = |message: String| ImportError::NotDenseNet { path: path.into(), message };
-    let shape = |key: &str| shapes.get(key).ok_or_else(|| not(format!("no tensor {key}")));
+    let shape = |key: &str| shapes.get(key).ok_or_else(|| not(format!("no tensor {}", torch_name(key))));
     let stem = shape("encoder.conv0.weight")?;
     if stem.len() != 4 || stem[1] != 3 || stem[2] != 7 || stem[3] != 7 {
         return Err(not(format!("encoder.conv0.weight has shape {stem:?}, expected [C, 3, 7, 7]")));
@@ -121,7 +152,12 @@ pub fn load_pytorch(path: &Path, device: &Device) -> Result<Imported, ImportErro
         .iter()
         .map(|e| match e {
             ApplyError::ShapeMismatch { path, expected, found } => {
-                format!("tensor {path} has shape {:?}, the model expects {:?}", found.to_vec(), expected.to_vec())
+                format!(
+                    "tensor {} has shape {:?}, the model expects {:?}",
+                    both_names(path),
+                    found.to_vec(),
+                    expected.to_vec()
+                )
             }
             other => other.to_string(),
         })
@@ -134,11 +170,12 @@ pub fn load_pytorch(path: &Path, device: &Device) -> Result<Imported, ImportErro
         .iter()
         .map(|(p, _)| p.clone())
         .filter(|p| !(encoder_only && p.starts_with("decoder.")))
+        .map(|p| both_names(&p))
         .collect();
     if !missing.is_empty() {
         return Err(ImportError::Missing { path: path.into(), names: missing });
     }
-    let unexpected: Vec<String> = result.unused.iter().filter(|n| !ignorable(n)).cloned().collect();
+    let unexpected: Vec<String> = result.unused.iter().filter(|n| !ignorable(n)).map(|n| both_names(n)).collect();
     if !unexpected.is_empty() {
         return Err(ImportError::Unexpected { path: path.into(), names: unexpected });
     }

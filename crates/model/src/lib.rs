@@ -9,6 +9,7 @@ pub mod densenet;
 pub mod import;
 pub mod loss;
 pub mod scale;
+pub mod tensor_file;
 pub mod upsample;
 
 pub use config::{DenseDepthConfig, DenseNetConfig};
