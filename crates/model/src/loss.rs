@@ -4,12 +4,12 @@
 //! and column; SSIM with an 11x11 Gaussian window (sigma 1.5), no padding, `C1 = (0.01 L)^2`,
 //! `C2 = (0.03 L)^2`, `ssim_term = clamp((1 - mean ssim) / 2, 0, 1)`. SSIM statistics are computed
 //! on values divided by `L`, which changes nothing mathematically but keeps squares of depth
-//! units (up to 1e6) out of half-precision range.
+//! units (up to 1e6) out of half-precision range; sums over whole maps are taken in f32.
 
 use burn::config::Config;
 use burn::tensor::module::conv2d;
 use burn::tensor::ops::ConvOptions;
-use burn::tensor::{Tensor, TensorData};
+use burn::tensor::{DType, Tensor, TensorData};
 
 /// Loss weights and SSIM's dynamic range.
 #[derive(Config, Debug)]
@@ -33,6 +33,20 @@ pub struct DepthLoss {
     pub l1: Tensor<1>,
 }
 
+/// 1 where the whole 11x11 window around a pixel lies in `mask` ([N, 1, H - 10, W - 10]), so that
+/// pixels outside the mask cannot influence the masked SSIM.
+fn windows_inside(mask: Tensor<4>) -> Tensor<4> {
+    let ones = Tensor::<4>::ones([1, 1, WINDOW, WINDOW], &mask.device()).cast(mask.dtype());
+    let covered = conv2d(mask, ones, None, ConvOptions::new([1, 1], [0, 0], [1, 1], 1));
+    covered.greater_equal_elem((WINDOW * WINDOW) as f32 - 0.5).float().cast(DType::F32)
+}
+
+/// Sums in f32 whatever the input's precision: a half-precision sum of a whole depth map
+/// overflows (65,504 is f16's largest value).
+fn sum32(x: Tensor<4>) -> Tensor<1> {
+    x.cast(DType::F32).sum()
+}
+
 const WINDOW: usize = 11;
 const SIGMA: f64 = 1.5;
 
@@ -49,8 +63,9 @@ impl DepthLossConfig {
     }
 
     /// Loss over the useful pixels only (`mask` is [N, 1, H, W] of 0 and 1): L1 over masked
-    /// pixels, gradients over pairs of masked neighbours, SSIM over windows centred on masked
-    /// pixels. Without a mask, every pixel counts, exactly as the fixture defines it.
+    /// pixels, gradients over pairs of masked neighbours, SSIM over windows lying wholly in the
+    /// mask, so that nothing outside it has any influence. Without a mask, every pixel counts,
+    /// exactly as the fixture defines it.
     pub fn forward_masked(&self, pred: Tensor<4>, target: Tensor<4>, mask: Option<Tensor<4>>) -> DepthLoss {
         let [n, c, h, w] = pred.dims();
         assert_eq!(c, 1, "depth maps have one channel");
@@ -64,22 +79,24 @@ impl DepthLossConfig {
 
         let (l1, gradient, ssim_mean) = match mask {
             None => {
-                let l1 = diff.abs().sum().div_scalar(count);
-                let gradient = (ey.sum() + ex.sum()).div_scalar(count);
-                let ssim = self.ssim_map(pred, target).mean();
+                let l1 = sum32(diff.abs()).div_scalar(count);
+                let gradient = (sum32(ey) + sum32(ex)).div_scalar(count);
+                let ssim =
+                    sum32(self.ssim_map(pred, target)).div_scalar(((h - WINDOW + 1) * (w - WINDOW + 1) * n) as f32);
                 (l1, gradient, ssim)
             }
             Some(mask) => {
-                let m_sum = mask.clone().sum().clamp_min(1.0);
-                let l1 = (diff.abs() * mask.clone()).sum() / m_sum.clone();
+                let mask = mask.cast(pred.dtype());
+                let m_sum = sum32(mask.clone()).clamp_min(1.0);
+                let l1 = sum32(diff.abs() * mask.clone()) / m_sum.clone();
                 let my =
                     mask.clone().slice([0..n, 0..1, 1..h, 0..w]) * mask.clone().slice([0..n, 0..1, 0..h - 1, 0..w]);
                 let mx =
                     mask.clone().slice([0..n, 0..1, 0..h, 1..w]) * mask.clone().slice([0..n, 0..1, 0..h, 0..w - 1]);
-                let gradient = ((ey * my).sum() + (ex * mx).sum()) / m_sum;
-                let r = WINDOW / 2;
-                let centres = mask.slice([0..n, 0..1, r..h - r, r..w - r]);
-                let ssim = (self.ssim_map(pred, target) * centres.clone()).sum() / centres.sum().clamp_min(1.0);
+                let gradient = (sum32(ey * my) + sum32(ex * mx)) / m_sum;
+                let centres = windows_inside(mask);
+                let ssim = sum32(self.ssim_map(pred, target).cast(DType::F32) * centres.clone())
+                    / sum32(centres).clamp_min(1.0);
                 (l1, gradient, ssim)
             }
         };
@@ -93,7 +110,8 @@ impl DepthLossConfig {
     /// Per-window SSIM ([N, 1, H - 10, W - 10]), computed on values divided by `L`.
     fn ssim_map(&self, pred: Tensor<4>, target: Tensor<4>) -> Tensor<4> {
         let device = pred.device();
-        let window = Tensor::<4>::from_data(TensorData::new(gaussian_window(), [1, 1, WINDOW, WINDOW]), &device);
+        let window = Tensor::<4>::from_data(TensorData::new(gaussian_window(), [1, 1, WINDOW, WINDOW]), &device)
+            .cast(pred.dtype());
         let blur = |x: Tensor<4>| conv2d(x, window.clone(), None, ConvOptions::new([1, 1], [0, 0], [1, 1], 1));
         let inv_l = (1.0 / self.dynamic_range) as f32;
         let (p, t) = (pred.mul_scalar(inv_l), target.mul_scalar(inv_l));
