@@ -1,6 +1,7 @@
 //! Project automation. `cargo xtask bench raycast` measures the ray caster against Open3D's
 //! Embree-based RaycastingScene on the same rays, and the generator's throughput.
 
+mod bench_model;
 mod bench_raycast;
 
 use std::process::ExitCode;
@@ -27,12 +28,15 @@ enum Command {
 enum Bench {
     /// Ray-cast ground truth: rays/s and ms per scene, with and without skipping, vs Open3D.
     Raycast(bench_raycast::Args),
+    /// DenseDepth forward and train step on the CPU, vs PyTorch.
+    Model(bench_model::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Bench { what: Bench::Raycast(args) } => bench_raycast::run(args),
+        Command::Bench { what: Bench::Model(args) } => bench_model::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

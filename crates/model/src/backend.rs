@@ -11,6 +11,13 @@ pub fn default_device() -> Device {
     Device::flex()
 }
 
+/// The default wgpu adapter (a discrete GPU when there is one; Mesa's lavapipe on a CPU-only
+/// machine with `mesa-vulkan-drivers`).
+#[cfg(feature = "wgpu")]
+pub fn wgpu_device() -> Device {
+    Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)
+}
+
 /// burn-ndarray, deprecated in Burn 0.22 and about 12x slower than flex here; built only with
 /// the `ndarray` feature, for comparisons.
 #[cfg(feature = "ndarray")]

@@ -56,3 +56,23 @@ impl DenseDepth {
 pub fn upsample_mode_for(device: &Device) -> Upsample {
     if device.is_autodiff() && !format!("{device:?}").contains("Flex") { Upsample::Matmul } else { Upsample::Native }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flex_keeps_the_native_upsample_even_when_training() {
+        let flex = crate::backend::default_device();
+        assert_eq!(upsample_mode_for(&flex), Upsample::Native);
+        assert_eq!(upsample_mode_for(&flex.autodiff()), Upsample::Native);
+    }
+
+    #[test]
+    #[should_panic(expected = "multiples of 32")]
+    fn input_sides_must_be_multiples_of_32() {
+        let device = crate::backend::default_device();
+        let model = DenseDepthConfig::new(crate::DenseNetConfig::tiny()).init(&device);
+        model.forward(Tensor::zeros([1, 3, 48, 64], &device));
+    }
+}

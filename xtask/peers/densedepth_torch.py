@@ -1,0 +1,81 @@
+"""Peer for `cargo xtask bench model`: the same DenseDepth architecture in PyTorch on the CPU.
+Not part of CI. Needs: pip install torch torchvision.
+
+Prints one line per batch size: batch=B forward_ms=X train_ms=Y (medians; the train step is
+forward, the DenseDepth loss, backward and an Adam step, as in the Burn benchmark).
+"""
+import argparse, statistics, time
+import torch, torch.nn as nn, torch.nn.functional as F
+from torchvision.models.densenet import DenseNet
+
+ap = argparse.ArgumentParser()
+ap.add_argument("--growth", type=int); ap.add_argument("--blocks"); ap.add_argument("--init", type=int)
+ap.add_argument("--bn-size", type=int); ap.add_argument("--height", type=int); ap.add_argument("--width", type=int)
+ap.add_argument("--batches"); ap.add_argument("--reps", type=int, default=3); ap.add_argument("--threads", type=int)
+a = ap.parse_args()
+torch.set_num_threads(a.threads)
+blocks = tuple(int(x) for x in a.blocks.split(","))
+
+class Up(nn.Module):
+    def __init__(s, i, o):
+        super().__init__(); s.convA = nn.Conv2d(i, o, 3, 1, 1); s.convB = nn.Conv2d(o, o, 3, 1, 1)
+    def forward(s, x, skip):
+        x = F.interpolate(x, size=skip.shape[2:], mode="bilinear", align_corners=True)
+        return F.leaky_relu(s.convB(F.leaky_relu(s.convA(torch.cat([x, skip], 1)), 0.2)), 0.2)
+
+class Model(nn.Module):
+    def __init__(s):
+        super().__init__()
+        s.enc = DenseNet(growth_rate=a.growth, block_config=blocks, num_init_features=a.init, bn_size=a.bn_size).features
+        c = a.init; skips = [c, c]
+        for i, n in enumerate(blocks):
+            c += n * a.growth
+            if i < 3: c //= 2; skips.append(c)
+        n = c // 2
+        s.conv2 = nn.Conv2d(c, n, 1)
+        s.up1 = Up(n + skips[3], n // 2); s.up2 = Up(n // 2 + skips[2], n // 4)
+        s.up3 = Up(n // 4 + skips[1], n // 8); s.up4 = Up(n // 8 + skips[0], n // 16)
+        s.conv3 = nn.Conv2d(n // 16, 1, 3, 1, 1)
+    def forward(s, x):
+        f = [x]
+        for m in s.enc: f.append(m(f[-1]))
+        x = s.conv2(F.relu(f[12]))
+        x = s.up1(x, f[8]); x = s.up2(x, f[6]); x = s.up3(x, f[4]); x = s.up4(x, f[3])
+        return s.conv3(x)
+
+def gauss(ws=11, sigma=1.5):
+    t = torch.arange(ws, dtype=torch.float32) - ws // 2
+    g = torch.exp(-t ** 2 / (2 * sigma ** 2)); g = g / g.sum()
+    return (g[:, None] * g[None, :])[None, None]
+
+def loss_fn(p, t, L=990.0):
+    w = gauss(); p, t = p / L, t / L
+    mp, mt = F.conv2d(p, w), F.conv2d(t, w)
+    spp = F.conv2d(p * p, w) - mp ** 2; stt = F.conv2d(t * t, w) - mt ** 2; spt = F.conv2d(p * t, w) - mp * mt
+    C1, C2 = 0.01 ** 2, 0.03 ** 2
+    ssim = (((2 * mp * mt + C1) * (2 * spt + C2)) / ((mp ** 2 + mt ** 2 + C1) * (spp + stt + C2))).mean()
+    p, t = p * L, t * L
+    dy = lambda x: x[:, :, 1:] - x[:, :, :-1]; dx = lambda x: x[:, :, :, 1:] - x[:, :, :, :-1]
+    n = p.numel()
+    edge = ((dy(p) - dy(t)).abs().sum() + (dx(p) - dx(t)).abs().sum()) / n
+    return torch.clamp((1 - ssim) / 2, 0, 1) + edge + 0.1 * (p - t).abs().mean()
+
+def timed(f, reps):
+    f(); ts = []
+    for _ in range(reps):
+        t = time.perf_counter(); f(); ts.append((time.perf_counter() - t) * 1e3)
+    return statistics.median(ts)
+
+for b in (int(x) for x in a.batches.split(",")):
+    m = Model()
+    x = torch.rand(b, 3, a.height, a.width)
+    m.eval()
+    with torch.no_grad():
+        fwd = timed(lambda: m(x), a.reps)
+    m.train()
+    opt = torch.optim.Adam(m.parameters(), lr=1e-4)
+    target = 10 + 990 * torch.rand(b, 1, a.height // 2, a.width // 2)
+    def step():
+        opt.zero_grad(); loss_fn(m(x), target).backward(); opt.step()
+    tr = timed(step, a.reps)
+    print(f"batch={b} forward_ms={fwd:.1f} train_ms={tr:.1f}", flush=True)

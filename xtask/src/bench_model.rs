@@ -1,0 +1,116 @@
+//! Model benchmark: median forward and train-step milliseconds on the CPU (flex), batch 1 and 4,
+//! beside PyTorch running the same architecture with the same thread count, in one run.
+
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use burn::optim::{AdamConfig, GradientsParams, Optimizer};
+use burn::tensor::{Distribution, Tensor};
+use model::{DenseDepthConfig, DenseNetConfig, DepthLossConfig};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Encoder preset (compact, densenet121, densenet161, densenet169, densenet201, tiny).
+    #[arg(long, default_value = "densenet161")]
+    preset: String,
+    #[arg(long, default_value_t = 480)]
+    height: usize,
+    #[arg(long, default_value_t = 640)]
+    width: usize,
+    /// Batch sizes, comma separated.
+    #[arg(long, default_value = "1,4", value_delimiter = ',')]
+    batches: Vec<usize>,
+    /// Timed repetitions per measurement (after one warm-up); the median is reported.
+    #[arg(long, default_value_t = 3)]
+    reps: usize,
+    /// Python interpreter with torch and torchvision for the peer; "none" skips it.
+    #[arg(long, default_value = "python3")]
+    python: String,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn time_ms(reps: usize, mut f: impl FnMut()) -> f64 {
+    f();
+    median(
+        (0..reps)
+            .map(|_| {
+                let t = Instant::now();
+                f();
+                t.elapsed().as_secs_f64() * 1e3
+            })
+            .collect(),
+    )
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let encoder = DenseNetConfig::preset(&args.preset).with_context(|| format!("unknown preset {:?}", args.preset))?;
+    if args.height % 32 != 0 || args.width % 32 != 0 {
+        bail!("--height and --width must be multiples of 32");
+    }
+    let config = DenseDepthConfig::new(encoder.clone());
+    let threads = rayon::current_num_threads();
+    let (h, w) = (args.height, args.width);
+    println!("DenseDepth-{} at {h}x{w}, {threads} threads, median of {} runs", args.preset, args.reps);
+    let mut rows = Vec::new();
+    for &batch in &args.batches {
+        let device = model::backend::default_device();
+        let net = config.init(&device);
+        let images = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &device);
+        let forward = time_ms(args.reps, || {
+            let out = net.forward(images.clone());
+            let _ = out.into_data();
+        });
+
+        let train_device = device.autodiff();
+        let mut net = config.init(&train_device);
+        let mut optim = AdamConfig::new().init();
+        let images = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &train_device);
+        let target = Tensor::<4>::random([batch, 1, h / 2, w / 2], Distribution::Uniform(10.0, 1000.0), &train_device);
+        let loss_config = DepthLossConfig::new();
+        let step = time_ms(args.reps, || {
+            let loss = loss_config.forward(net.forward(images.clone()), target.clone()).total;
+            let grads = GradientsParams::from_grads(loss.backward(), &net);
+            net = optim.step(1e-4, net.clone(), grads);
+        });
+        rows.push((batch, forward, step));
+    }
+
+    let mut peer = Vec::new();
+    if args.python != "none" {
+        let script = concat!(env!("CARGO_MANIFEST_DIR"), "/peers/densedepth_torch.py");
+        let [g, i, bn] = [encoder.growth_rate, encoder.num_init_features, encoder.bn_size];
+        let blocks = encoder.block_config.map(|x| x.to_string()).join(",");
+        let batches = args.batches.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(",");
+        let out = Command::new(&args.python)
+            .args([script, "--growth", &g.to_string(), "--blocks", &blocks, "--init", &i.to_string(), "--bn-size", &bn.to_string()])
+            .args(["--height", &h.to_string(), "--width", &w.to_string(), "--batches", &batches])
+            .args(["--reps", &args.reps.to_string(), "--threads", &threads.to_string()])
+            .output()
+            .with_context(|| format!("running {} {script}", args.python))?;
+        if !out.status.success() {
+            bail!("peer failed: {}", String::from_utf8_lossy(&out.stderr));
+        }
+        for line in String::from_utf8_lossy(&out.stdout).lines() {
+            let field = |key: &str| line.split_whitespace().find_map(|w| w.strip_prefix(key)).and_then(|v| v.parse::<f64>().ok());
+            if let (Some(batch), Some(f), Some(t)) = (field("batch="), field("forward_ms="), field("train_ms=")) {
+                peer.push((batch as usize, f, t));
+            }
+        }
+    }
+
+    println!();
+    println!("| batch | Burn flex forward ms | PyTorch forward ms | ratio | Burn flex train step ms | PyTorch train step ms | ratio |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|");
+    for (batch, f, t) in rows {
+        let p = peer.iter().find(|p| p.0 == batch);
+        let (pf, pt) = p.map(|p| (format!("{:.0}", p.1), format!("{:.0}", p.2))).unwrap_or(("-".into(), "-".into()));
+        let (rf, rt) = p.map(|p| (format!("{:.2}", f / p.1), format!("{:.2}", t / p.2))).unwrap_or(("-".into(), "-".into()));
+        println!("| {batch} | {f:.0} | {pf} | {rf} | {t:.0} | {pt} | {rt} |");
+    }
+    Ok(())
+}
