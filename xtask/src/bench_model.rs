@@ -59,7 +59,8 @@ pub fn run(args: Args) -> Result<()> {
     let mut rows = Vec::new();
     for &batch in &args.batches {
         let device = model::backend::default_device();
-        let net = config.init(&device);
+        // Inference as `infer` runs it: eval mode, no autodiff, BatchNorms folded.
+        let net = config.init(&device).folded();
         let images = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &device);
         let forward = time_ms(args.reps, || {
             let out = net.forward(images.clone());
@@ -87,7 +88,17 @@ pub fn run(args: Args) -> Result<()> {
         let blocks = encoder.block_config.map(|x| x.to_string()).join(",");
         let batches = args.batches.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(",");
         let out = Command::new(&args.python)
-            .args([script, "--growth", &g.to_string(), "--blocks", &blocks, "--init", &i.to_string(), "--bn-size", &bn.to_string()])
+            .args([
+                script,
+                "--growth",
+                &g.to_string(),
+                "--blocks",
+                &blocks,
+                "--init",
+                &i.to_string(),
+                "--bn-size",
+                &bn.to_string(),
+            ])
             .args(["--height", &h.to_string(), "--width", &w.to_string(), "--batches", &batches])
             .args(["--reps", &args.reps.to_string(), "--threads", &threads.to_string()])
             .output()
@@ -96,7 +107,9 @@ pub fn run(args: Args) -> Result<()> {
             bail!("peer failed: {}", String::from_utf8_lossy(&out.stderr));
         }
         for line in String::from_utf8_lossy(&out.stdout).lines() {
-            let field = |key: &str| line.split_whitespace().find_map(|w| w.strip_prefix(key)).and_then(|v| v.parse::<f64>().ok());
+            let field = |key: &str| {
+                line.split_whitespace().find_map(|w| w.strip_prefix(key)).and_then(|v| v.parse::<f64>().ok())
+            };
             if let (Some(batch), Some(f), Some(t)) = (field("batch="), field("forward_ms="), field("train_ms=")) {
                 peer.push((batch as usize, f, t));
             }
@@ -104,12 +117,15 @@ pub fn run(args: Args) -> Result<()> {
     }
 
     println!();
-    println!("| batch | Burn flex forward ms | PyTorch forward ms | ratio | Burn flex train step ms | PyTorch train step ms | ratio |");
+    println!(
+        "| batch | Burn flex forward ms | PyTorch forward ms | ratio | Burn flex train step ms | PyTorch train step ms | ratio |"
+    );
     println!("|---:|---:|---:|---:|---:|---:|---:|");
     for (batch, f, t) in rows {
         let p = peer.iter().find(|p| p.0 == batch);
         let (pf, pt) = p.map(|p| (format!("{:.0}", p.1), format!("{:.0}", p.2))).unwrap_or(("-".into(), "-".into()));
-        let (rf, rt) = p.map(|p| (format!("{:.2}", f / p.1), format!("{:.2}", t / p.2))).unwrap_or(("-".into(), "-".into()));
+        let (rf, rt) =
+            p.map(|p| (format!("{:.2}", f / p.1), format!("{:.2}", t / p.2))).unwrap_or(("-".into(), "-".into()));
         println!("| {batch} | {f:.0} | {pf} | {rf} | {t:.0} | {pt} | {rt} |");
     }
     Ok(())

@@ -45,6 +45,12 @@ impl DenseDepth {
         self.decoder.forward(self.encoder.forward(images), mode)
     }
 
+    /// The same network for inference only: BatchNorms that follow a convolution are folded
+    /// into it (see `DenseNetEncoder::folded`). Do not train the result.
+    pub fn folded(self) -> Self {
+        DenseDepth { encoder: self.encoder.folded(), decoder: self.decoder }
+    }
+
     /// Number of trainable parameters.
     pub fn parameters(&self) -> usize {
         self.num_params()

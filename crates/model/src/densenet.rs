@@ -17,12 +17,13 @@ fn conv(channels: [usize; 2], kernel: usize, stride: usize, padding: usize, devi
         .init(device)
 }
 
-/// BN-ReLU-Conv1x1-BN-ReLU-Conv3x3, adding `growth_rate` channels.
+/// BN-ReLU-Conv1x1-BN-ReLU-Conv3x3, adding `growth_rate` channels. `norm2` is `None` once it
+/// has been folded into `conv1` for inference.
 #[derive(Module, Debug)]
 pub struct DenseLayer {
     pub norm1: BatchNorm,
     pub conv1: Conv2d,
-    pub norm2: BatchNorm,
+    pub norm2: Option<BatchNorm>,
     pub conv2: Conv2d,
 }
 
@@ -31,7 +32,7 @@ impl DenseLayer {
         DenseLayer {
             norm1: BatchNormConfig::new(input).init(device),
             conv1: conv([input, bn_size * growth], 1, 1, 0, device),
-            norm2: BatchNormConfig::new(bn_size * growth).init(device),
+            norm2: Some(BatchNormConfig::new(bn_size * growth).init(device)),
             conv2: conv([bn_size * growth, growth], 3, 1, 1, device),
         }
     }
@@ -39,7 +40,11 @@ impl DenseLayer {
     /// The new channels for the concatenated features `x`.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let x = self.conv1.forward(relu(self.norm1.forward(x)));
-        self.conv2.forward(relu(self.norm2.forward(x)))
+        let x = match &self.norm2 {
+            Some(norm) => norm.forward(x),
+            None => x,
+        };
+        self.conv2.forward(relu(x))
     }
 }
 
@@ -106,7 +111,8 @@ pub struct Skips {
 #[derive(Module, Debug)]
 pub struct DenseNetEncoder {
     pub conv0: Conv2d,
-    pub norm0: BatchNorm,
+    /// `None` once folded into `conv0` for inference.
+    pub norm0: Option<BatchNorm>,
     pub pool0: MaxPool2d,
     pub denseblock1: DenseBlock,
     pub transition1: Transition,
@@ -126,7 +132,7 @@ impl DenseNetConfig {
         let c0 = self.num_init_features;
         DenseNetEncoder {
             conv0: conv([3, c0], 7, 2, 3, device),
-            norm0: BatchNormConfig::new(c0).init(device),
+            norm0: Some(BatchNormConfig::new(c0).init(device)),
             pool0: MaxPool2dConfig::new([3, 3])
                 .with_strides([2, 2])
                 .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
@@ -145,12 +151,47 @@ impl DenseNetConfig {
 
 impl DenseNetEncoder {
     pub fn forward(&self, x: Tensor<4>) -> Skips {
-        let relu0 = relu(self.norm0.forward(self.conv0.forward(x)));
+        let x = self.conv0.forward(x);
+        let relu0 = relu(match &self.norm0 {
+            Some(norm) => norm.forward(x),
+            None => x,
+        });
         let pool0 = self.pool0.forward(relu0.clone());
         let transition1 = self.transition1.forward(self.denseblock1.forward(pool0.clone()));
         let transition2 = self.transition2.forward(self.denseblock2.forward(transition1.clone()));
         let t3 = self.transition3.forward(self.denseblock3.forward(transition2.clone()));
         let norm5 = self.norm5.forward(self.denseblock4.forward(t3));
         Skips { relu0, pool0, transition1, transition2, norm5 }
+    }
+}
+
+/// `bn(conv(x))` as one convolution: `W' = W s`, `b' = s (b - mean) + beta`, with
+/// `s = gamma / sqrt(var + eps)` per output channel. Inference only (running statistics).
+pub fn fold_batch_norm(mut conv: Conv2d, bn: &BatchNorm) -> Conv2d {
+    let scale = bn.gamma.val() / bn.running_var.value().add_scalar(bn.epsilon).sqrt();
+    let [out, _, _, _] = conv.weight.dims();
+    let weight = conv.weight.val() * scale.clone().reshape([out, 1, 1, 1]);
+    let bias = conv.bias.as_ref().map(|b| b.val()).unwrap_or_else(|| scale.zeros_like());
+    let bias = (bias - bn.running_mean.value()) * scale + bn.beta.val();
+    conv.weight = burn::module::Param::from_tensor(weight);
+    conv.bias = Some(burn::module::Param::from_tensor(bias));
+    conv
+}
+
+impl DenseNetEncoder {
+    /// Folds every BatchNorm that directly follows a convolution (norm0, each layer's norm2)
+    /// into it: the same eval-mode result with fewer passes over the feature maps.
+    pub fn folded(mut self) -> Self {
+        if let Some(norm) = self.norm0.take() {
+            self.conv0 = fold_batch_norm(self.conv0, &norm);
+        }
+        for block in [&mut self.denseblock1, &mut self.denseblock2, &mut self.denseblock3, &mut self.denseblock4] {
+            for layer in &mut block.layers {
+                if let Some(norm) = layer.norm2.take() {
+                    layer.conv1 = fold_batch_norm(layer.conv1.clone(), &norm);
+                }
+            }
+        }
+        self
     }
 }

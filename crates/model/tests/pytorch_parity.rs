@@ -23,4 +23,9 @@ fn tiny_densedepth_matches_pytorch_in_eval_mode() {
         let (abs, rel) = errors(&to_vec(out), &want);
         assert!(rel <= 1e-4, "{mode:?}: max_abs_err={abs} max_rel_err={rel}");
     }
+    // Folding BatchNorms into convolutions keeps the eval-mode result.
+    let folded = imported.model.folded();
+    assert!(folded.encoder.norm0.is_none() && folded.encoder.denseblock2.layers[1].norm2.is_none());
+    let (abs, rel) = errors(&to_vec(folded.forward(input)), &want);
+    assert!(rel <= 1e-4, "folded: max_abs_err={abs} max_rel_err={rel}");
 }
