@@ -2,12 +2,13 @@
 //! beside PyTorch running the same architecture with the same thread count, in one run.
 
 use std::process::Command;
-use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Distribution, Tensor};
 use model::{DenseDepthConfig, DenseNetConfig, DepthLossConfig};
+
+use crate::timing::time_ms;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -27,24 +28,9 @@ pub struct Args {
     /// Python interpreter with torch and torchvision for the peer; "none" skips it.
     #[arg(long, default_value = "python3")]
     python: String,
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
-fn time_ms(reps: usize, mut f: impl FnMut()) -> f64 {
-    f();
-    median(
-        (0..reps)
-            .map(|_| {
-                let t = Instant::now();
-                f();
-                t.elapsed().as_secs_f64() * 1e3
-            })
-            .collect(),
-    )
+    /// Measure the forward pass only (for profiling).
+    #[arg(long)]
+    forward_only: bool,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -70,8 +56,15 @@ pub fn run(args: Args) -> Result<()> {
         let encoder_ms = time_ms(args.reps, || {
             let _ = net.encoder.forward(images.clone()).norm5.into_data();
         });
-        println!("batch {batch}: forward {forward:.0} ms, of which encoder {encoder_ms:.0} ms, decoder {:.0} ms", forward - encoder_ms);
+        println!(
+            "batch {batch}: forward {forward:.0} ms, of which encoder {encoder_ms:.0} ms, decoder {:.0} ms",
+            forward - encoder_ms
+        );
 
+        if args.forward_only {
+            rows.push((batch, forward, f64::NAN));
+            continue;
+        }
         let train_device = device.autodiff();
         let mut net = config.init(&train_device);
         let mut optim = AdamConfig::new().init();

@@ -5,13 +5,14 @@
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::Command;
-use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use dataset::format::GeneratorParams;
 use dataset::generate::{Generator, build_scene};
 use dataset::{Kit, RayBundle, RayCaster, RigPose, Skipping, Split};
 use sensor::Sensor;
+
+use crate::timing::time;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -27,23 +28,6 @@ pub struct Args {
     /// Samples for the generator's throughput.
     #[arg(long, default_value_t = 200)]
     samples: u32,
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
-/// Median seconds of `f` over `reps` runs, after one warm-up.
-fn time<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
-    let mut out = f();
-    let mut times = Vec::with_capacity(reps);
-    for _ in 0..reps {
-        let t = Instant::now();
-        out = f();
-        times.push(t.elapsed().as_secs_f64());
-    }
-    (median(times), out)
 }
 
 pub fn run(args: Args) -> Result<()> {

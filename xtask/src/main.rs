@@ -3,6 +3,7 @@
 
 mod bench_model;
 mod bench_raycast;
+mod timing;
 
 use std::process::ExitCode;
 

@@ -9,15 +9,7 @@ use sensor::Sensor;
 
 /// The kit folder; `None` (test skipped) when absent outside CI.
 fn kit_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("DENSETACT_KIT")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/densetact-kit")));
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    assert!(std::env::var_os("CI").is_none(), "CI must provide the DenseTact kit at {}", dir.display());
-    eprintln!("skipped: no DenseTact kit at {}", dir.display());
-    None
+    sensor::shared::shared_dir_for_tests("DENSETACT_KIT", "densetact-kit")
 }
 
 fn stl_files(dir: &std::path::Path) -> Vec<PathBuf> {

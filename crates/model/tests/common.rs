@@ -9,15 +9,7 @@ pub use model::tensor_file::max_errors as errors;
 
 /// `../shared/fixtures` (or `$DENSETACT_FIXTURES`); `None` (test skipped) when absent outside CI.
 pub fn fixtures() -> Option<PathBuf> {
-    let dir = std::env::var_os("DENSETACT_FIXTURES")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/fixtures")));
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    assert!(std::env::var_os("CI").is_none(), "CI must provide the fixtures at {}", dir.display());
-    eprintln!("skipped: no fixtures at {}", dir.display());
-    None
+    sensor::shared::shared_dir_for_tests("DENSETACT_FIXTURES", "fixtures")
 }
 
 /// A safetensors file whose tensors must exist (panics otherwise).

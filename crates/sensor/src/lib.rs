@@ -9,6 +9,7 @@ mod correspondence;
 mod depth;
 pub mod io;
 mod sensor;
+pub mod shared;
 
 use std::path::{Path, PathBuf};
 

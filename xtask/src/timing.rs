@@ -1,0 +1,25 @@
+//! Timing helpers shared by the benchmarks.
+
+use std::time::Instant;
+
+pub fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Median seconds of `f` over `reps` runs after one warm-up, and the last result.
+pub fn time<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+    let mut out = f();
+    let mut times = Vec::with_capacity(reps);
+    for _ in 0..reps {
+        let t = Instant::now();
+        out = f();
+        times.push(t.elapsed().as_secs_f64());
+    }
+    (median(times), out)
+}
+
+/// Median milliseconds of `f` over `reps` runs after one warm-up.
+pub fn time_ms(reps: usize, f: impl FnMut()) -> f64 {
+    time(reps, f).0 * 1e3
+}
