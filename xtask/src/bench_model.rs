@@ -35,7 +35,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     let encoder = DenseNetConfig::preset(&args.preset).with_context(|| format!("unknown preset {:?}", args.preset))?;
-    if args.height % 32 != 0 || args.width % 32 != 0 {
+    if !args.height.is_multiple_of(32) || !args.width.is_multiple_of(32) {
         bail!("--height and --width must be multiples of 32");
     }
     let config = DenseDepthConfig::new(encoder.clone());
