@@ -30,22 +30,14 @@ impl DepthMap {
     pub fn to_png_um(&self) -> Vec<u8> {
         let px: Vec<u16> =
             self.depth_mm.iter().map(|&d| (d * 1000.0 / PNG_UM_PER_STEP).round().clamp(0.0, 65535.0) as u16).collect();
-        let img: ImageBuffer<Luma<u16>, Vec<u16>> =
-            ImageBuffer::from_raw(self.size_px, self.size_px, px).expect("square buffer");
-        let mut out = std::io::Cursor::new(Vec::new());
-        img.write_to(&mut out, image::ImageFormat::Png).expect("in-memory PNG encode");
-        out.into_inner()
+        encode_png(self.size_px, px)
     }
 
     /// The paper's 8-bit encoding: 0..255 spans 0..`max_depth_mm` (about 0.037 mm a step).
     pub fn to_png_u8(&self, max_depth_mm: f32) -> Vec<u8> {
         let px: Vec<u8> =
             self.depth_mm.iter().map(|&d| (d / max_depth_mm * 255.0).round().clamp(0.0, 255.0) as u8).collect();
-        let img: ImageBuffer<Luma<u8>, Vec<u8>> =
-            ImageBuffer::from_raw(self.size_px, self.size_px, px).expect("square buffer");
-        let mut out = std::io::Cursor::new(Vec::new());
-        img.write_to(&mut out, image::ImageFormat::Png).expect("in-memory PNG encode");
-        out.into_inner()
+        encode_png(self.size_px, px)
     }
 
     /// Writes the 16-bit micrometre PNG atomically.
@@ -69,6 +61,18 @@ impl DepthMap {
         let depth_mm = img.into_raw().into_iter().map(|v| v as f32 * PNG_UM_PER_STEP / 1000.0).collect();
         Ok(DepthMap { size_px, depth_mm })
     }
+}
+
+/// A square grey image as PNG bytes, in memory.
+fn encode_png<P: image::Primitive>(size_px: u32, px: Vec<P>) -> Vec<u8>
+where
+    Luma<P>: image::Pixel<Subpixel = P> + image::PixelWithColorType,
+    [P]: image::EncodableLayout,
+{
+    let img: ImageBuffer<Luma<P>, Vec<P>> = ImageBuffer::from_raw(size_px, size_px, px).expect("square buffer");
+    let mut out = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png).expect("in-memory PNG encode");
+    out.into_inner()
 }
 
 #[cfg(test)]
