@@ -9,7 +9,7 @@ use std::process::Command;
 use anyhow::{Context, Result, bail};
 use dataset::format::GeneratorParams;
 use dataset::generate::{Generator, build_scene};
-use dataset::{Kit, RayBundle, RayCaster, RigPose, Skipping, Split};
+use dataset::{Kit, RayBundle, RayCaster, Renderer, RigPose, SensorUnit, Skipping, Split};
 use sensor::Sensor;
 
 use crate::timing::time;
@@ -117,29 +117,31 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
 
-    // Whole generator, depth PNG writes included: the embedded kit and the authors' kit.
+    // Whole generator, depth PNG writes included: the embedded kit and the authors' kit, depth
+    // only and with a simulated unit's RGB images rendered and written too.
     println!();
     let kits = [("procedural kit", Kit::procedural(sensor.radius_mm as f32)), ("DenseTact kit", kit)];
+    let unit = SensorUnit::from_seed(1, sensor.radius_mm);
+    let renderer = Renderer::for_crop(&unit);
     for (name, kit) in &kits {
-        let dir = std::env::temp_dir().join(format!("densetact-bench-gen-{}", std::process::id()));
-        std::fs::remove_dir_all(&dir).ok();
-        let params = GeneratorParams {
-            seed: 1,
-            count: args.samples,
-            kit: kit.source.clone(),
-            z_travel_mm: [0.0, 2.5],
-            b_axis_deg: [0.0, 360.0],
-            test_fraction: 0.1,
-            depth_u8: false,
-        };
-        let report = Generator { out: dir.clone(), sensor: &sensor, kit, params, skipping: Skipping::On }.run()?;
-        std::fs::remove_dir_all(&dir).ok();
-        println!(
-            "generator ({name}, depth PNGs written): {} samples in {:.2} s = {:.1} samples/s",
-            report.generated,
-            report.seconds,
-            report.generated as f64 / report.seconds
-        );
+        for with_images in [false, true] {
+            let dir = std::env::temp_dir().join(format!("densetact-bench-gen-{}", std::process::id()));
+            std::fs::remove_dir_all(&dir).ok();
+            let params = GeneratorParams {
+                unit: with_images.then_some(1),
+                ..GeneratorParams::new(1, args.samples, &kit.source)
+            };
+            let (sensor, renderer) = if with_images { (&unit.sensor, Some(&renderer)) } else { (&sensor, None) };
+            let report = Generator { out: dir.clone(), sensor, kit, params, skipping: Skipping::On, renderer }.run()?;
+            std::fs::remove_dir_all(&dir).ok();
+            let what = if with_images { "depth + RGB image PNGs" } else { "depth PNGs" };
+            println!(
+                "generator ({name}, {what} written): {} samples in {:.2} s = {:.1} samples/s",
+                report.generated,
+                report.seconds,
+                report.generated as f64 / report.seconds
+            );
+        }
     }
     Ok(())
 }

@@ -3,6 +3,7 @@
 
 mod bench_model;
 mod bench_raycast;
+mod bench_render;
 mod timing;
 
 use std::process::ExitCode;
@@ -31,6 +32,8 @@ enum Bench {
     Raycast(bench_raycast::Args),
     /// DenseDepth forward and train step on the CPU, vs PyTorch.
     Model(bench_model::Args),
+    /// Simulated unit images: time per stage of a sample; saw-tooth calibration time and error.
+    Render(bench_render::Args),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +41,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Bench { what: Bench::Raycast(args) } => bench_raycast::run(args),
         Command::Bench { what: Bench::Model(args) } => bench_model::run(args),
+        Command::Bench { what: Bench::Render(args) } => bench_render::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

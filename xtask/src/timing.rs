@@ -23,3 +23,10 @@ pub fn time<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
 pub fn time_ms(reps: usize, f: impl FnMut()) -> f64 {
     time(reps, f).0 * 1e3
 }
+
+/// Seconds of a single run of `f` (no warm-up), and its result.
+pub fn once<T>(f: impl FnOnce() -> T) -> (f64, T) {
+    let t = Instant::now();
+    let out = f();
+    (t.elapsed().as_secs_f64(), out)
+}

@@ -165,10 +165,14 @@ pub fn calibrate(img: &RgbImage, opts: &CalibrationOptions) -> Result<Calibratio
     let r_end = (img.width() as f64).hypot(img.height() as f64);
     let (mut radius_px, mut theta_rad) = (vec![0.0], vec![0.0]);
     let mut sds = Vec::new();
+    let rim_theta = match opts.target {
+        GpTarget::Theta => theta_at(r_rim).0,
+        GpTarget::RSinTheta => std::f64::consts::FRAC_PI_2,
+    };
     let mut r = 1.0;
     while r < r_rim {
         let (t, sd) = theta_at(r);
-        let rising = t > *theta_rad.last().unwrap() && t < std::f64::consts::FRAC_PI_2;
+        let rising = t > *theta_rad.last().unwrap() && (t < rim_theta || opts.target == GpTarget::Theta);
         if !rising {
             if opts.target == GpTarget::Theta {
                 return fail(format!(
@@ -188,14 +192,14 @@ pub fn calibrate(img: &RgbImage, opts: &CalibrationOptions) -> Result<Calibratio
     let patched_px = (r_rim - r0 - 1.0).max(0.0);
     while r < r_rim {
         radius_px.push(r);
-        theta_rad.push(t0 + (std::f64::consts::FRAC_PI_2 - t0) * (r - r0) / (r_rim - r0));
+        theta_rad.push(t0 + (rim_theta - t0) * (r - r0) / (r_rim - r0));
         r += 1.0;
     }
     let n = radius_px.len();
-    let rim_slope = (std::f64::consts::FRAC_PI_2 - theta_rad[n - 4]) / (r_rim - radius_px[n - 4]);
+    let rim_slope = (rim_theta - theta_rad[n - 4]) / (r_rim - radius_px[n - 4]);
     while r <= r_end + 1.0 {
         radius_px.push(r);
-        theta_rad.push(std::f64::consts::FRAC_PI_2 + (r - r_rim) * rim_slope);
+        theta_rad.push(rim_theta + (r - r_rim) * rim_slope);
         r += 1.0;
     }
     sensor.correspondence =

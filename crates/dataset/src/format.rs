@@ -5,6 +5,10 @@
 //! DIR/samples/NNNNNN.json   one record per finished sample: its scene, split and statistics
 //! DIR/depth/NNNNNN.png      depth, 16-bit grey PNG in micrometres, on the sensor's crop
 //! DIR/depth_u8/NNNNNN.png   optional: the paper's 8-bit encoding (0..255 = 0..max depth)
+//! DIR/images/NNNNNN.png     with a simulated unit: its 8-bit RGB camera image of the crop
+//! DIR/unit/unit.json        the unit's optics and lighting (`SensorUnit`)
+//! DIR/unit/truth.json       the unit's true sensor description (for evaluating a calibration)
+//! DIR/unit/reference.png    the unit's no-contact image of the crop, without noise
 //! DIR/manifest.json         written last: sensor, parameters, every sample record, summary
 //! ```
 //!
@@ -68,6 +72,26 @@ pub struct GeneratorParams {
     /// Chance that a sample is drawn from the test trials.
     pub test_fraction: f32,
     pub depth_u8: bool,
+    /// Seed of the simulated unit whose images are rendered; `None`: depth only.
+    #[serde(default)]
+    pub unit: Option<u64>,
+}
+
+impl GeneratorParams {
+    /// The generator's defaults: z travel 0..2.5 mm, any B-axis angle, 10% test samples,
+    /// 16-bit depth only, no images.
+    pub fn new(seed: u64, count: u32, kit: &str) -> Self {
+        GeneratorParams {
+            seed,
+            count,
+            kit: kit.to_string(),
+            z_travel_mm: [0.0, 2.5],
+            b_axis_deg: [0.0, 360.0],
+            test_fraction: 0.1,
+            depth_u8: false,
+            unit: None,
+        }
+    }
 }
 
 /// `generator.json`: parameters and the sensor, fixed for the life of a dataset folder.
@@ -88,6 +112,9 @@ pub struct SampleRecord {
     pub scene: SceneDescription,
     /// Paths relative to the dataset folder.
     pub depth: String,
+    /// The camera image, when the dataset has a unit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image: Option<String>,
     pub stats: DepthStats,
     pub cast: CastStats,
 }
@@ -167,12 +194,14 @@ impl Manifest {
         }
         manifest.sensor.validate().map_err(|e| FormatError::Invalid { path: path.clone(), message: e.to_string() })?;
         for s in &manifest.samples {
-            let file = dir.join(&s.depth);
-            if !file.is_file() {
-                return Err(FormatError::Invalid {
-                    path: file,
-                    message: format!("sample {} is listed but missing", s.id),
-                });
+            for file in std::iter::once(&s.depth).chain(&s.image) {
+                let file = dir.join(file);
+                if !file.is_file() {
+                    return Err(FormatError::Invalid {
+                        path: file,
+                        message: format!("sample {} is listed but missing", s.id),
+                    });
+                }
             }
         }
         Ok(manifest)

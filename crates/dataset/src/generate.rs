@@ -16,8 +16,10 @@ use crate::kit::{Kit, Split, Trial};
 use crate::progress::Progress;
 use crate::raycast::{RayCaster, Skipping};
 use crate::rays::RayBundle;
+use crate::render::{Renderer, encode_png_rgb};
 use crate::rng::SplitMix64;
 use crate::scene::{RigPose, Scene};
+use crate::unit::SensorUnit;
 
 /// Draws sample `id`'s trial and pose from its own random stream.
 pub fn draw_sample<'k>(kit: &'k Kit, params: &GeneratorParams, id: u32) -> (&'k Trial, RigPose) {
@@ -52,6 +54,8 @@ pub struct Generator<'a> {
     pub kit: &'a Kit,
     pub params: GeneratorParams,
     pub skipping: Skipping,
+    /// Renders each sample's camera image; its unit's geometry must be `sensor`.
+    pub renderer: Option<&'a Renderer>,
 }
 
 /// What a finished run reports.
@@ -114,12 +118,23 @@ impl Generator<'_> {
             let bytes = depth.to_png_u8(self.sensor.max_depth_mm as f32);
             sensor::io::write_atomic(&self.out.join(format!("depth_u8/{name}.png")), &bytes)?;
         }
+        let image = match self.renderer {
+            Some(renderer) => {
+                let rel = format!("images/{name}.png");
+                let noise_seed = SplitMix64::for_item(self.params.seed ^ 0x1a6e, id as u64).next_u64();
+                let img = renderer.render(&depth.depth_mm, Some(noise_seed));
+                sensor::io::write_atomic(&self.out.join(&rel), &encode_png_rgb(&img))?;
+                Some(rel)
+            }
+            None => None,
+        };
         let record = SampleRecord {
             id,
             split: trial.split,
             trial: trial.number,
             scene: scene.description,
             depth: depth_rel,
+            image,
             stats: DepthStats::of(&depth, mask),
             cast,
         };
@@ -130,10 +145,14 @@ impl Generator<'_> {
     /// Creates the folder, or checks that an existing one was made with the same parameters,
     /// and removes temporary files left by a killed run.
     fn prepare_folder(&self) -> Result<()> {
-        for sub in ["samples", "depth", "depth_u8"] {
-            if sub == "depth_u8" && !self.params.depth_u8 {
-                continue;
-            }
+        let mut subs = vec!["samples", "depth"];
+        if self.params.depth_u8 {
+            subs.push("depth_u8");
+        }
+        if self.renderer.is_some() {
+            subs.extend(["images", "unit"]);
+        }
+        for sub in subs {
             let dir = self.out.join(sub);
             std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
             remove_temporaries(&dir)?;
@@ -156,6 +175,9 @@ impl Generator<'_> {
         } else {
             write_json(&path, &file)?;
         }
+        if let Some(renderer) = self.renderer {
+            write_unit_files(&self.out.join("unit"), renderer)?;
+        }
         Ok(())
     }
 
@@ -168,13 +190,24 @@ impl Generator<'_> {
                 continue;
             }
             let record: SampleRecord = read_json(&path)?;
-            if record.id != id || !self.out.join(&record.depth).is_file() {
-                bail!("{}: record does not match sample {id} or its depth file is missing", path.display());
+            let files_exist = std::iter::once(&record.depth).chain(&record.image).all(|f| self.out.join(f).is_file());
+            if record.id != id || !files_exist || record.image.is_some() != self.renderer.is_some() {
+                bail!("{}: record does not match sample {id} or its image files are missing", path.display());
             }
             done.insert(id, record);
         }
         Ok(done)
     }
+}
+
+/// The unit's description, its true geometry and its no-contact image.
+pub fn write_unit_files(dir: &Path, renderer: &Renderer) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    let unit: &SensorUnit = renderer.unit();
+    write_json(&dir.join("unit.json"), unit)?;
+    unit.sensor.save_json(&dir.join("truth.json"))?;
+    sensor::io::write_atomic(&dir.join("reference.png"), &encode_png_rgb(&renderer.reference_image(1)))?;
+    Ok(())
 }
 
 fn remove_temporaries(dir: &Path) -> Result<()> {

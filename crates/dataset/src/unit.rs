@@ -110,7 +110,7 @@ impl SensorUnit {
     /// A unit drawn from `seed`: every build-to-build difference varied within plausible bounds.
     /// Its fisheye keeps the useful disk inside the crop, as a real build is adjusted to.
     pub fn from_seed(seed: u64, radius_mm: f64) -> Self {
-        let mut rng = SplitMix64::for_item(seed, 0x0005_e115_0a41_7u64);
+        let mut rng = SplitMix64::for_item(seed, 0x005e_1150_a417_u64);
         let mut unit = SensorUnit::nominal(Sensor::with_radius(radius_mm));
         unit.seed = Some(seed);
         let mut vary = |lo: f64, hi: f64| rng.range(lo, hi);
@@ -121,11 +121,17 @@ impl SensorUnit {
             centre_v_px: 299.5 + vary(-6.0, 6.0),
             radial: RadialMap::Equidistant { focal_px_per_rad: 1.0 },
         };
-        let k = [vary(-0.03, 0.03), vary(-0.005, 0.005), 0.0, 0.0];
-        // Choose the focal length so the rim (90 degrees) lands 268..284 px from the centre.
+        // Distortion drawn until the lens stays monotone out to the crop's corners; the focal
+        // length puts the rim (90 degrees) 268..284 px from the centre.
         let rim_px = vary(268.0, 284.0);
-        let poly = FRAC_PI_2 * (1.0 + FRAC_PI_2.powi(2) * (k[0] + FRAC_PI_2.powi(2) * k[1]));
-        s.correspondence.radial = RadialMap::KannalaBrandt { focal_px_per_rad: rim_px / poly, k };
+        for _ in 0..100 {
+            let k = [vary(-0.03, 0.03), vary(-0.005, 0.005), 0.0, 0.0];
+            let poly = FRAC_PI_2 * (1.0 + FRAC_PI_2.powi(2) * (k[0] + FRAC_PI_2.powi(2) * k[1]));
+            s.correspondence.radial = RadialMap::KannalaBrandt { focal_px_per_rad: rim_px / poly, k };
+            if s.validate().is_ok() {
+                break;
+            }
+        }
 
         for (i, led) in unit.leds.iter_mut().enumerate() {
             let scale = radius_mm / 25.0;

@@ -98,3 +98,87 @@ fn bad_arguments_and_mismatched_folders_fail_clearly() {
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("sensor.json"));
 }
+
+#[test]
+fn a_units_images_follow_its_depth_maps() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let r = generate(&a, 6, &["--unit", "5"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let manifest = dataset::format::Manifest::load(&a).unwrap();
+    let truth = sensor::Sensor::load_json(&a.join("unit/truth.json")).unwrap();
+    assert_eq!(manifest.sensor, truth, "a unit's dataset is labelled in its true geometry");
+    assert_eq!(manifest.generator.unit, Some(5));
+    let reference = image::open(a.join("unit/reference.png")).unwrap().to_rgb8();
+    let mask = truth.valid_mask();
+    for s in &manifest.samples {
+        let img = image::open(a.join(s.image.as_ref().unwrap())).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (570, 570));
+        let depth = sensor::DepthMap::load_png_um(&a.join(&s.depth)).unwrap();
+        // Away from contact only noise separates the frame from the reference; under contact
+        // the shading changes.
+        let (mut quiet, mut quiet_n, mut pressed, mut pressed_n) = (0.0, 0.0, 0.0, 0.0);
+        for (i, (p, q)) in img.pixels().zip(reference.pixels()).enumerate() {
+            let diff: f64 = (0..3).map(|c| (p.0[c] as f64 - q.0[c] as f64).abs()).sum::<f64>() / 3.0;
+            if !mask[i] {
+                continue;
+            }
+            if depth.depth_mm[i] > 0.3 {
+                (pressed, pressed_n) = (pressed + diff, pressed_n + 1.0);
+            } else if depth.depth_mm[i] == 0.0 {
+                (quiet, quiet_n) = (quiet + diff, quiet_n + 1.0);
+            }
+        }
+        let quiet = quiet / quiet_n;
+        assert!(quiet < 3.0, "sample {}: {quiet} grey levels off the reference without contact", s.id);
+        if pressed_n > 100.0 {
+            assert!(pressed / pressed_n > 2.0 * quiet, "sample {}: contact barely shows", s.id);
+        }
+    }
+    // Same seed and unit, same images.
+    assert!(generate(&b, 6, &["--unit", "5"]).status.success());
+    for s in &manifest.samples {
+        let name = s.image.as_ref().unwrap();
+        assert_eq!(std::fs::read(a.join(name)).unwrap(), std::fs::read(b.join(name)).unwrap());
+    }
+    // Another unit cannot resume this folder.
+    let r = generate(&a, 6, &["--unit", "6"]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("other parameters"));
+    let r = generate(&tmp.path().join("c"), 2, &["--unit", "5", "--sensor", "x.json"]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("--sensor"));
+}
+
+#[test]
+fn sawtooth_and_calibrate_commands_round_trip() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let r = Command::new(BIN).args(["sawtooth", "--unit", "9", "--out", dir.to_str().unwrap()]).output().unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let out = dir.join("sensor.json");
+    let r = Command::new(BIN)
+        .args(["calibrate", "--image", dir.join("sawtooth.png").to_str().unwrap(), "--out", out.to_str().unwrap()])
+        .args(["--truth", dir.join("truth.json").to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&r.stdout);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let last = stdout.lines().last().unwrap();
+    let value = |key: &str| -> f64 {
+        last.split_whitespace().find_map(|kv| kv.strip_prefix(key)).unwrap_or_else(|| panic!("{last}")).parse().unwrap()
+    };
+    assert!(value("rms_px=") <= 0.5 && value("rms_deg=") <= 0.1, "{last}");
+    let calibrated = sensor::Sensor::load_json(&out).unwrap();
+    assert!(matches!(calibrated.correspondence.radial, sensor::RadialMap::Tabulated { .. }));
+
+    // A depth map is no calibration image: a named error, and no output written.
+    let bad = dir.join("bad.png");
+    std::fs::write(&bad, sensor::DepthMap::zeros(64).to_png_um()).unwrap();
+    let out2 = dir.join("sensor2.json");
+    let r = Command::new(BIN)
+        .args(["calibrate", "--image", bad.to_str().unwrap(), "--out", out2.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("bad.png"));
+    assert!(!out2.exists());
+}

@@ -29,14 +29,14 @@ impl DepthMap {
     /// Encodes as 16-bit grey PNG in micrometres (rounded): lossless at 0.5 um.
     pub fn to_png_um(&self) -> Vec<u8> {
         let px: Vec<u16> =
-            self.depth_mm.iter().map(|&d| (d * 1000.0 / PNG_UM_PER_STEP).round().clamp(0.0, 65535.0) as u16).collect();
+            self.depth_mm.iter().map(|&d| ((d * 1000.0 / PNG_UM_PER_STEP).clamp(0.0, 65535.0) + 0.5) as u16).collect();
         encode_png(self.size_px, px)
     }
 
     /// The paper's 8-bit encoding: 0..255 spans 0..`max_depth_mm` (about 0.037 mm a step).
     pub fn to_png_u8(&self, max_depth_mm: f32) -> Vec<u8> {
         let px: Vec<u8> =
-            self.depth_mm.iter().map(|&d| (d / max_depth_mm * 255.0).round().clamp(0.0, 255.0) as u8).collect();
+            self.depth_mm.iter().map(|&d| ((d / max_depth_mm * 255.0).clamp(0.0, 255.0) + 0.5) as u8).collect();
         encode_png(self.size_px, px)
     }
 
@@ -63,16 +63,26 @@ impl DepthMap {
     }
 }
 
-/// A square grey image as PNG bytes, in memory.
+/// A square grey image as PNG bytes, in memory. Fast deflate with the `Up` filter: lossless like
+/// every PNG, a few percent larger than the default level and several times quicker to write.
 fn encode_png<P: image::Primitive>(size_px: u32, px: Vec<P>) -> Vec<u8>
 where
     Luma<P>: image::Pixel<Subpixel = P> + image::PixelWithColorType,
     [P]: image::EncodableLayout,
 {
+    use image::ImageEncoder;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
     let img: ImageBuffer<Luma<P>, Vec<P>> = ImageBuffer::from_raw(size_px, size_px, px).expect("square buffer");
-    let mut out = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut out, image::ImageFormat::Png).expect("in-memory PNG encode");
-    out.into_inner()
+    let mut out = Vec::new();
+    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Up)
+        .write_image(
+            image::EncodableLayout::as_bytes(img.as_raw().as_slice()),
+            size_px,
+            size_px,
+            <Luma<P> as image::PixelWithColorType>::COLOR_TYPE,
+        )
+        .expect("in-memory PNG encode");
+    out
 }
 
 #[cfg(test)]

@@ -1,0 +1,90 @@
+//! Rendering benchmark: where a simulated unit's sample spends its time (ray cast, shading,
+//! noise and quantisation, PNG encoding, the atomic write), one thread, median per sample;
+//! then the saw-tooth frame and its calibration, with the calibration's error.
+
+use anyhow::Result;
+use dataset::calibrate::{CalibrationOptions, calibrate, compare};
+use dataset::format::GeneratorParams;
+use dataset::generate::{build_scene, draw_sample};
+use dataset::render::encode_png_rgb;
+use dataset::{Kit, RayBundle, RayCaster, Renderer, SawToothShot, SensorUnit, Skipping};
+
+use crate::timing::{median, once, time};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Samples drawn from the embedded kit (each timed once; medians reported).
+    #[arg(long, default_value_t = 60)]
+    samples: u32,
+    /// Seed of the simulated unit.
+    #[arg(long, default_value_t = 1)]
+    unit: u64,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let unit = SensorUnit::from_seed(args.unit, 25.0);
+    let sensor = &unit.sensor;
+    let (setup_s, renderer) = once(|| Renderer::for_crop(&unit));
+    let kit = Kit::procedural(sensor.radius_mm as f32);
+    let rays = RayBundle::new(sensor);
+    let params = GeneratorParams { unit: Some(args.unit), ..GeneratorParams::new(1, args.samples, &kit.source) };
+    let dir = tempfile_dir()?;
+    let stages = ["ray cast", "shade", "noise + 8-bit", "RGB PNG encode", "depth PNG encode", "RGB PNG write"];
+    let mut times: Vec<Vec<f64>> = vec![Vec::new(); stages.len()];
+    let (mut shaded, mut bytes) = (0usize, 0usize);
+    for id in 0..args.samples {
+        let (trial, pose) = draw_sample(&kit, &params, id);
+        let scene = build_scene(&kit, trial, pose)?;
+        let (t_cast, (depth, _)) =
+            once(|| RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On).depth_map(sensor, &rays));
+        let (t_shade, (radiance, n)) = once(|| renderer.radiance(&depth.depth_mm));
+        let (t_noise, img) = once(|| renderer.to_image(&radiance, 1, Some(id as u64)));
+        let (t_png, png) = once(|| encode_png_rgb(&img));
+        let (t_depth_png, _) = once(|| depth.to_png_um());
+        let path = dir.join(format!("{id}.png"));
+        let (t_write, written) = once(|| sensor::io::write_atomic(&path, &png));
+        written?;
+        for (v, t) in times.iter_mut().zip([t_cast, t_shade, t_noise, t_png, t_depth_png, t_write]) {
+            v.push(t * 1e3);
+        }
+        shaded += n;
+        bytes += png.len();
+    }
+    std::fs::remove_dir_all(&dir).ok();
+    let n = args.samples as f64;
+    println!("unit {}: renderer set-up {:.1} ms (once per run)", args.unit, setup_s * 1e3);
+    println!(
+        "per sample, one thread, over {} samples (mean {:.0} shaded pixels, {:.0} kB RGB PNG):",
+        args.samples,
+        shaded as f64 / n,
+        bytes as f64 / n / 1e3
+    );
+    let (mut total, mut total_mean) = (0.0, 0.0);
+    println!("  {:18} {:>9} {:>9}", "stage", "median", "mean");
+    for (name, v) in stages.iter().zip(times) {
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        let m = median(v);
+        (total, total_mean) = (total + m, total_mean + mean);
+        println!("  {name:18} {m:6.2} ms {mean:6.2} ms");
+    }
+    println!("  {:18} {total:6.2} ms {total_mean:6.2} ms", "sum");
+
+    // Calibration: render a saw-tooth frame, calibrate, compare with the truth.
+    let shot = SawToothShot { seed: args.unit, ..Default::default() };
+    let (t_frame, frame) = time(2, || shot.render(&unit));
+    let (t_cal, cal) = time(2, || calibrate(&frame, &CalibrationOptions::default()));
+    let cal = cal?;
+    let (px, deg) = compare(&cal.sensor, &unit.sensor);
+    println!(
+        "saw-tooth frame (800x600, 3x3 samples per pixel) {:.0} ms; calibration {:.0} ms: rms {px:.3} px, {deg:.4} deg",
+        t_frame * 1e3,
+        t_cal * 1e3
+    );
+    Ok(())
+}
+
+fn tempfile_dir() -> Result<std::path::PathBuf> {
+    let dir = std::env::temp_dir().join(format!("densetact-bench-render-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
+}
