@@ -13,6 +13,7 @@ pub struct Progress {
     done: AtomicU64,
     start: Instant,
     last_line: Mutex<Instant>,
+    message: Mutex<String>,
 }
 
 impl Progress {
@@ -33,7 +34,16 @@ impl Progress {
             done: AtomicU64::new(0),
             start: Instant::now(),
             last_line: Mutex::new(Instant::now()),
+            message: Mutex::new(String::new()),
         }
+    }
+
+    /// Text shown after the counts (a running loss, say), on the bar and in periodic lines.
+    pub fn set_message(&self, text: &str) {
+        if let Some(bar) = &self.bar {
+            bar.set_message(format!("{} {text}", self.label));
+        }
+        *self.message.lock().unwrap() = text.to_string();
     }
 
     pub fn inc(&self, n: u64) {
@@ -48,7 +58,8 @@ impl Progress {
             let secs = self.start.elapsed().as_secs_f64();
             let rate = done as f64 / secs.max(1e-9);
             let eta = (self.total - done.min(self.total)) as f64 / rate.max(1e-9);
-            eprintln!("{}: {done}/{} ({rate:.1}/s, ETA {eta:.0} s)", self.label, self.total);
+            let message = self.message.lock().unwrap();
+            eprintln!("{}: {done}/{} ({rate:.2}/s, ETA {eta:.0} s) {message}", self.label, self.total);
         }
     }
 

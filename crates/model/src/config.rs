@@ -81,7 +81,7 @@ impl DenseNetConfig {
 }
 
 /// DenseDepth: the DenseNet encoder and a decoder of four upsample-concat-conv-conv blocks.
-#[derive(Config, Debug)]
+#[derive(Config, Debug, PartialEq)]
 pub struct DenseDepthConfig {
     pub encoder: DenseNetConfig,
     /// Decoder channels as a fraction of the bottleneck's (DenseDepth uses 0.5).

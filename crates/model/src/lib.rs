@@ -2,6 +2,7 @@
 //! DenseDepth's skip-connection decoder, its loss, the depth scale, and PyTorch weight import.
 
 pub mod backend;
+pub mod bundle;
 pub mod config;
 pub mod decoder;
 pub mod densedepth;

@@ -1,1 +1,9 @@
-//! Training, fine-tuning and bundle export (to come: see the project issues).
+//! Training, resuming and fine-tuning DenseDepth on generated DenseTact datasets, and export of
+//! the bundle that `infer` loads.
+
+pub mod checkpoint;
+pub mod data;
+pub mod export;
+pub mod training;
+
+pub use training::{FitConfig, OnBadData, fit};

@@ -1,0 +1,88 @@
+//! Checkpoints: model, optimiser and where the run stands, replaced atomically.
+//!
+//! `RUN/checkpoint/` holds `model.bpk`, `optim.bpk` and `state.json`. A new checkpoint is written
+//! into `RUN/checkpoint.new/`, then the old folder is renamed away and the new one into place;
+//! a kill between the two renames leaves `checkpoint.old/`, which a resume takes instead.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use burn::module::Module;
+use burn::optim::ModuleOptimizer;
+use burn::store::ModuleRecord;
+use burn::tensor::{Bytes, Device};
+use model::{DenseDepth, DenseDepthConfig};
+use serde::{Deserialize, Serialize};
+
+use crate::training::{EpochMetrics, FitConfig};
+
+/// Where a run stands: the next step to take, and what it has measured.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunState {
+    pub config: FitConfig,
+    pub model: DenseDepthConfig,
+    /// Epoch and batch within it that the run does next.
+    pub epoch: usize,
+    pub batch: usize,
+    pub global_step: u64,
+    pub skipped_steps: u64,
+    pub bad_samples: Vec<String>,
+    pub history: Vec<EpochMetrics>,
+    /// Sum and count of the training loss over the current epoch so far.
+    pub epoch_loss_sum: f64,
+    pub epoch_loss_count: u64,
+}
+
+pub fn dir(run: &Path) -> PathBuf {
+    run.join("checkpoint")
+}
+
+/// Writes a checkpoint and swaps it in.
+pub fn save(run: &Path, net: &DenseDepth, optim: &ModuleOptimizer, state: &RunState) -> Result<()> {
+    let (final_dir, new, old) = (dir(run), run.join("checkpoint.new"), run.join("checkpoint.old"));
+    let _ = std::fs::remove_dir_all(&new);
+    std::fs::create_dir_all(&new).with_context(|| format!("{}: cannot create", new.display()))?;
+    // Burn keeps BatchNorm's running statistics per thread and folds them in lazily; a record
+    // taken straight from the training module would lag a step. `valid()` folds them first.
+    let model_bytes = net.valid().into_record().into_bytes().context("serialising the model")?;
+    sensor::io::write_atomic(&new.join("model.bpk"), &model_bytes)?;
+    let optim_bytes = optim.into_bytes().context("serialising the optimiser")?;
+    sensor::io::write_atomic(&new.join("optim.bpk"), &optim_bytes)?;
+    dataset::format::write_json(&new.join("state.json"), state)?;
+    if final_dir.exists() {
+        let _ = std::fs::remove_dir_all(&old);
+        std::fs::rename(&final_dir, &old).with_context(|| format!("{}: cannot rename", final_dir.display()))?;
+    }
+    std::fs::rename(&new, &final_dir).with_context(|| format!("{}: cannot rename", new.display()))?;
+    let _ = std::fs::remove_dir_all(&old);
+    Ok(())
+}
+
+/// The checkpoint a resume should read, if any.
+pub fn latest(run: &Path) -> Option<PathBuf> {
+    [dir(run), run.join("checkpoint.old")].into_iter().find(|d| d.join("state.json").is_file())
+}
+
+/// Reads a checkpoint's state.
+pub fn read_state(ckpt: &Path) -> Result<RunState> {
+    Ok(dataset::format::read_json(&ckpt.join("state.json"))?)
+}
+
+/// Restores the network (on `device`) and the optimiser from a checkpoint.
+pub fn restore(ckpt: &Path, state: &RunState, device: &Device) -> Result<(DenseDepth, ModuleOptimizer)> {
+    let read = |name: &str| -> Result<Bytes> {
+        let path = ckpt.join(name);
+        Ok(Bytes::from_bytes_vec(std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?))
+    };
+    let record = ModuleRecord::from_bytes(read("model.bpk")?)
+        .with_context(|| format!("{}: not a model record", ckpt.join("model.bpk").display()))?;
+    let net = state
+        .model
+        .init(device)
+        .try_load_record(record)
+        .with_context(|| format!("{}: does not fit the run's model", ckpt.join("model.bpk").display()))?;
+    let optim = crate::training::optimizer()
+        .from_bytes(read("optim.bpk")?)
+        .with_context(|| format!("{}: not an optimiser record", ckpt.join("optim.bpk").display()))?;
+    Ok((net, optim))
+}

@@ -1,0 +1,77 @@
+//! Bundles from a training run or from a PyTorch DenseDepth `state_dict`.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, INPUT_ENCODING, write_bundle};
+use model::{DenseDepth, DepthScale};
+use sensor::Sensor;
+
+use crate::checkpoint::{self, RunState};
+use crate::data::DepthDataset;
+
+/// Writes the bundle of a run's latest checkpoint.
+pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device) -> Result<()> {
+    let ckpt =
+        checkpoint::latest(run).with_context(|| format!("{}: no checkpoint in this run folder", run.display()))?;
+    let state = checkpoint::read_state(&ckpt)?;
+    let (net, _) = checkpoint::restore(&ckpt, &state, device)?;
+    export_net(&net, &state, out)
+}
+
+/// Writes the bundle of a trained network and its run's state.
+pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path) -> Result<()> {
+    let data = DepthDataset::open(&state.config.data, None, state.config.input_hw)?;
+    let file = BundleFile {
+        format_version: BUNDLE_FORMAT_VERSION,
+        model: state.model.clone(),
+        input_height_px: state.config.input_hw[0],
+        input_width_px: state.config.input_hw[1],
+        input_encoding: INPUT_ENCODING.into(),
+        depth_scale: data.scale,
+        sensor: data.sensor.clone(),
+        reference_image: None,
+        training: serde_json::json!({
+            "data": state.config.data,
+            "epochs": state.epoch,
+            "batch": state.config.batch,
+            "lr": state.config.lr,
+            "seed": state.config.seed,
+            "steps": state.global_step,
+            "skipped_steps": state.skipped_steps,
+            "bad_samples": state.bad_samples,
+            "history": state.history,
+        }),
+    };
+    write_bundle(out, net, &file, data.reference_png().as_deref())?;
+    Ok(())
+}
+
+/// A bundle from a PyTorch DenseDepth `state_dict` and a sensor description.
+pub fn import_pth(
+    pth: &Path,
+    sensor: &Path,
+    input_hw: [usize; 2],
+    out: &Path,
+    device: &burn::tensor::Device,
+) -> Result<()> {
+    let sensor = Sensor::load_json(sensor)?;
+    let imported = model::import::load_pytorch(pth, device)?;
+    if imported.encoder_only {
+        anyhow::bail!("{}: holds a DenseNet encoder only; a bundle needs a whole DenseDepth", pth.display());
+    }
+    let net = imported.model;
+    let file = BundleFile {
+        format_version: BUNDLE_FORMAT_VERSION,
+        model: imported.config,
+        input_height_px: input_hw[0],
+        input_width_px: input_hw[1],
+        input_encoding: INPUT_ENCODING.into(),
+        depth_scale: DepthScale::paper(sensor.max_depth_mm as f32),
+        sensor,
+        reference_image: None,
+        training: serde_json::json!({ "imported_from": pth }),
+    };
+    write_bundle(out, &net, &file, None)?;
+    Ok(())
+}

@@ -1,0 +1,237 @@
+//! `train`: fit, resume, fine-tune and export DenseTact depth models.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+use burn::tensor::Device;
+use clap::{Parser, Subcommand};
+use train::data::DepthDataset;
+use train::training::{FitConfig, OnBadData, Start, fit, preset};
+
+#[derive(Parser)]
+#[command(name = "train", version, about = "Train DenseDepth for DenseTact sensors")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Train a model on a generated dataset (with images); resumable with --resume.
+    Fit(FitArgs),
+    /// Fine-tune a bundle's model on a new unit's (small) dataset.
+    Finetune(FinetuneArgs),
+    /// Write the bundle of a run's latest checkpoint.
+    Export {
+        #[arg(long)]
+        run: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Make a bundle from a PyTorch DenseDepth state_dict.
+    Import {
+        #[arg(long)]
+        pth: PathBuf,
+        #[arg(long)]
+        sensor: PathBuf,
+        #[arg(long, default_value = "480x640", value_parser = parse_hw)]
+        input: [usize; 2],
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+#[derive(clap::Args)]
+struct Common {
+    /// Dataset folder (from `dataset generate --unit SEED`).
+    #[arg(long)]
+    data: PathBuf,
+    /// Run folder: checkpoints, metrics.csv, metrics.json.
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = 10)]
+    epochs: usize,
+    #[arg(long, default_value_t = 4)]
+    batch: usize,
+    #[arg(long, default_value_t = 1e-4)]
+    lr: f64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// flex (CPU), wgpu, wgpu:lavapipe-style default adapter.
+    #[arg(long, default_value = "flex")]
+    device: String,
+    /// Checkpoint every this many steps (and at every epoch's end).
+    #[arg(long, default_value_t = 50)]
+    checkpoint_every: u64,
+    /// Continue the run in --out from its last checkpoint.
+    #[arg(long)]
+    resume: bool,
+    /// What a missing or corrupt sample does: stop (default) or skip (counted, reported).
+    #[arg(long, value_enum, default_value_t = OnBadData::Stop)]
+    on_bad_data: OnBadData,
+    /// Consecutive non-finite steps (each skipped) after which the run stops.
+    #[arg(long, default_value_t = 5)]
+    max_bad_steps: u64,
+    /// Test hook: the loss of this step is made non-finite.
+    #[arg(long, hide = true)]
+    inject_nan_step: Option<u64>,
+}
+
+#[derive(clap::Args)]
+struct FitArgs {
+    #[command(flatten)]
+    common: Common,
+    /// tiny, compact, densenet121, densenet161, densenet169, densenet201.
+    #[arg(long, default_value = "compact")]
+    preset: String,
+    /// Network input, HxW (multiples of 32); the square crop is resized to it.
+    #[arg(long, default_value = "256x256", value_parser = parse_hw)]
+    input: [usize; 2],
+    /// A torchvision DenseNet checkpoint (ImageNet) to start the encoder from.
+    #[arg(long)]
+    encoder_weights: Option<PathBuf>,
+    /// Bundle folder to write at the end.
+    #[arg(long)]
+    bundle: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct FinetuneArgs {
+    #[command(flatten)]
+    common: Common,
+    /// The bundle to start from.
+    #[arg(long)]
+    from: PathBuf,
+    /// Train the decoder only.
+    #[arg(long)]
+    freeze_encoder: bool,
+    /// Bundle folder to write at the end.
+    #[arg(long)]
+    bundle: Option<PathBuf>,
+}
+
+fn parse_hw(s: &str) -> Result<[usize; 2], String> {
+    let (h, w) = s.split_once('x').ok_or_else(|| format!("expected HxW, got {s:?}"))?;
+    let parse = |v: &str| v.trim().parse::<usize>().map_err(|e| format!("{v:?}: {e}"));
+    let hw = [parse(h)?, parse(w)?];
+    if hw.iter().any(|&v| v == 0 || v % 32 != 0) {
+        return Err(format!("sides must be positive multiples of 32, got {s}"));
+    }
+    Ok(hw)
+}
+
+fn device(name: &str) -> Result<Device> {
+    match name {
+        "flex" | "cpu" => Ok(model::backend::default_device()),
+        #[cfg(feature = "wgpu")]
+        "wgpu" => Ok(model::backend::wgpu_device()),
+        other => bail!(
+            "unknown or unavailable device {other:?}: flex{}",
+            if cfg!(feature = "wgpu") { ", wgpu" } else { " (build with --features train/wgpu for wgpu)" }
+        ),
+    }
+}
+
+fn config(c: &Common, input_hw: [usize; 2], freeze_encoder: bool) -> Result<FitConfig> {
+    if c.batch == 0 || c.epochs == 0 || c.lr.is_nan() || c.lr <= 0.0 || c.checkpoint_every == 0 {
+        bail!("--batch, --epochs, --lr and --checkpoint-every must be positive");
+    }
+    Ok(FitConfig {
+        data: c.data.clone(),
+        input_hw,
+        epochs: c.epochs,
+        batch: c.batch,
+        lr: c.lr,
+        seed: c.seed,
+        checkpoint_every: c.checkpoint_every,
+        on_bad_data: c.on_bad_data,
+        max_bad_steps: c.max_bad_steps,
+        freeze_encoder,
+        inject_nan_step: c.inject_nan_step,
+    })
+}
+
+fn run_fit(args: FitArgs) -> Result<()> {
+    let dev = device(&args.common.device)?;
+    let cfg = config(&args.common, args.input, false)?;
+    let model_config = model::DenseDepthConfig::new(preset(&args.preset)?);
+    let weights = match &args.encoder_weights {
+        Some(path) => {
+            let imported = model::import::load_pytorch(path, &dev)?;
+            if imported.config.encoder != model_config.encoder {
+                bail!("{}: its DenseNet is not the {} preset", path.display(), args.preset);
+            }
+            let mut net = model_config.init(&dev);
+            net.encoder = imported.model.encoder;
+            Some(net)
+        }
+        None => None,
+    };
+    let fitted = fit(&args.common.out, &cfg, Start { model_config, weights }, &dev, args.common.resume)?;
+    report(&fitted.state);
+    if let Some(bundle) = &args.bundle {
+        train::export::export_net(&fitted.net, &fitted.state, bundle)?;
+        println!("wrote bundle {}", bundle.display());
+    }
+    Ok(())
+}
+
+fn run_finetune(args: FinetuneArgs) -> Result<()> {
+    let dev = device(&args.common.device)?;
+    let (net, file) = model::bundle::load_bundle(&args.from, &dev)?;
+    let input = [file.input_height_px, file.input_width_px];
+    let cfg = config(&args.common, input, args.freeze_encoder)?;
+    let data = DepthDataset::open(&cfg.data, None, input)?;
+    if (data.sensor.radius_mm - file.sensor.radius_mm).abs() > 1e-9 {
+        bail!("{}: the dataset's sensor radius differs from the bundle's", cfg.data.display());
+    }
+    let start = Start { model_config: file.model.clone(), weights: Some(net) };
+    let fitted = fit(&args.common.out, &cfg, start, &dev, args.common.resume)?;
+    report(&fitted.state);
+    if let Some(bundle) = &args.bundle {
+        train::export::export_net(&fitted.net, &fitted.state, bundle)?;
+        println!("wrote bundle {}", bundle.display());
+    }
+    Ok(())
+}
+
+fn report(state: &train::checkpoint::RunState) {
+    for m in &state.history {
+        println!(
+            "epoch {:3}: train loss {:.4}  validation L1 {:.4} mm  ({:.0} s)",
+            m.epoch, m.train_loss, m.val_l1_mm, m.seconds
+        );
+    }
+    if state.skipped_steps > 0 {
+        println!("{} steps skipped for a non-finite loss", state.skipped_steps);
+    }
+    if !state.bad_samples.is_empty() {
+        println!("{} bad samples skipped:", state.bad_samples.len());
+        for s in &state.bad_samples {
+            println!("  {s}");
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Fit(args) => run_fit(args),
+        Command::Finetune(args) => run_finetune(args),
+        Command::Export { run, out } => train::export::export_run(&run, &out, &model::backend::default_device())
+            .map(|()| println!("wrote bundle {}", out.display())),
+        Command::Import { pth, sensor, input, out } => {
+            train::export::import_pth(&pth, &sensor, input, &out, &model::backend::default_device())
+                .with_context(|| format!("importing {}", pth.display()))
+                .map(|()| println!("wrote bundle {}", out.display()))
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

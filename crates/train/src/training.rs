@@ -1,0 +1,294 @@
+//! The training loop: masked DenseDepth loss, Adam, per-epoch validation in millimetres,
+//! checkpoints every K steps and at each epoch's end, resumable after a kill at any moment.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use burn::data::dataloader::batcher::Batcher;
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Tensor};
+use dataset::Split;
+use dataset::progress::Progress;
+use dataset::rng::SplitMix64;
+use model::{DenseDepth, DenseDepthConfig, DepthLossConfig};
+use serde::{Deserialize, Serialize};
+
+use crate::checkpoint::{self, RunState};
+use crate::data::{DepthBatcher, DepthDataset, Jitter};
+
+/// What a bad sample does to a run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+pub enum OnBadData {
+    /// Stop with the file's name and the problem.
+    Stop,
+    /// Leave the sample out, count it and report it.
+    Skip,
+}
+
+/// Everything that defines a run; a resume must match it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FitConfig {
+    pub data: PathBuf,
+    pub input_hw: [usize; 2],
+    pub epochs: usize,
+    pub batch: usize,
+    pub lr: f64,
+    pub seed: u64,
+    /// Checkpoint every this many steps (and at every epoch's end).
+    pub checkpoint_every: u64,
+    pub on_bad_data: OnBadData,
+    /// Consecutive non-finite steps after which the run stops.
+    pub max_bad_steps: u64,
+    pub freeze_encoder: bool,
+    /// Test hook: make the loss of this global step non-finite.
+    #[serde(default)]
+    pub inject_nan_step: Option<u64>,
+}
+
+/// One epoch's numbers (also a row of `metrics.csv`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpochMetrics {
+    pub epoch: usize,
+    pub train_loss: f64,
+    pub val_l1_mm: f64,
+    pub val_loss: f64,
+    pub skipped_steps: u64,
+    pub bad_samples: usize,
+    pub seconds: f64,
+}
+
+/// The optimiser every run uses (Adam, Burn's defaults).
+pub fn optimizer() -> ModuleOptimizer {
+    AdamConfig::new().init()
+}
+
+/// Where a run starts when there is no checkpoint: fresh weights or given ones.
+pub struct Start {
+    pub model_config: DenseDepthConfig,
+    pub weights: Option<DenseDepth>,
+}
+
+/// A finished run.
+pub struct Fitted {
+    pub net: DenseDepth,
+    pub state: RunState,
+}
+
+/// Trains (or resumes) the run in `run_dir`.
+pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, resume: bool) -> Result<Fitted> {
+    std::fs::create_dir_all(run_dir).with_context(|| format!("{}: cannot create", run_dir.display()))?;
+    let train_device = device.clone().autodiff();
+    let train = DepthDataset::open(&config.data, Some(Split::Train), config.input_hw)?;
+    let val = DepthDataset::open(&config.data, Some(Split::Test), config.input_hw)?;
+    if train.records.is_empty() {
+        bail!("{}: no training samples", config.data.display());
+    }
+    let (mut net, mut optim, mut state) = match checkpoint::latest(run_dir) {
+        Some(ckpt) if resume => {
+            let state = checkpoint::read_state(&ckpt)?;
+            if state.config != *config {
+                bail!(
+                    "{}: the checkpoint was made with other settings; resume with the same arguments, \
+                     or use another --out",
+                    ckpt.join("state.json").display()
+                );
+            }
+            let (net, optim) = checkpoint::restore(&ckpt, &state, &train_device)?;
+            eprintln!("resuming at epoch {} batch {} (step {})", state.epoch + 1, state.batch, state.global_step);
+            (net, optim, state)
+        }
+        Some(ckpt) => bail!(
+            "{}: this run folder already has a checkpoint; pass --resume to continue it, or use another --out",
+            ckpt.display()
+        ),
+        None => {
+            // Fresh weights come from the device's generator: seeded, so a run is reproducible.
+            train_device.seed(config.seed);
+            let net = match start.weights {
+                Some(w) => w.fork(&train_device).train(),
+                None => start.model_config.init(&train_device),
+            };
+            let state = RunState {
+                config: config.clone(),
+                model: start.model_config.clone(),
+                epoch: 0,
+                batch: 0,
+                global_step: 0,
+                skipped_steps: 0,
+                bad_samples: Vec::new(),
+                history: Vec::new(),
+                epoch_loss_sum: 0.0,
+                epoch_loss_count: 0,
+            };
+            (net, optimizer(), state)
+        }
+    };
+    if config.freeze_encoder {
+        net.encoder = net.encoder.no_grad();
+    }
+    let loss_config = DepthLossConfig::new();
+    let batcher = DepthBatcher { input_hw: config.input_hw, mask: train.mask.clone() };
+    let n_batches = train.records.len().div_ceil(config.batch);
+    let mut bad_run = 0u64;
+    while state.epoch < config.epochs {
+        let epoch_start = Instant::now();
+        let order = permutation(train.records.len(), config.seed, state.epoch as u64);
+        let progress = Progress::new(&format!("epoch {}/{}", state.epoch + 1, config.epochs), n_batches as u64);
+        progress.inc(state.batch as u64);
+        while state.batch < n_batches {
+            let ids = &order[state.batch * config.batch..((state.batch + 1) * config.batch).min(order.len())];
+            let mut items = Vec::with_capacity(ids.len());
+            for &i in ids {
+                match train.load(i, Some(Jitter::draw(config.seed, state.epoch as u64, i as u64))) {
+                    Ok(item) => items.push(item),
+                    Err(e) if config.on_bad_data == OnBadData::Skip => {
+                        let name = e.to_string();
+                        if !state.bad_samples.contains(&name) {
+                            eprintln!("skipping bad sample: {name}");
+                            state.bad_samples.push(name);
+                        }
+                    }
+                    Err(e) => {
+                        return Err(e)
+                            .context("bad training sample (use --on-bad-data skip to leave such samples out)");
+                    }
+                }
+            }
+            state.batch += 1;
+            state.global_step += 1;
+            if !items.is_empty() {
+                let batch = batcher.batch(items, &train_device);
+                let pred = net.forward(batch.images);
+                let loss = loss_config.forward_masked(pred, batch.depths, Some(batch.masks)).total;
+                let mut value = loss.clone().into_scalar::<f32>() as f64;
+                if config.inject_nan_step == Some(state.global_step) {
+                    value = f64::NAN;
+                }
+                if value.is_finite() {
+                    let grads = GradientsParams::from_grads(loss.backward(), &net);
+                    net = optim.step(config.lr, net, grads);
+                    state.epoch_loss_sum += value;
+                    state.epoch_loss_count += 1;
+                    bad_run = 0;
+                } else {
+                    state.skipped_steps += 1;
+                    bad_run += 1;
+                    eprintln!("step {}: non-finite loss ({value}); step skipped", state.global_step);
+                    if bad_run >= config.max_bad_steps {
+                        bail!(
+                            "{bad_run} consecutive non-finite steps at step {}: stopping; the last good checkpoint \
+                             is in {} (try a lower --lr)",
+                            state.global_step,
+                            checkpoint::dir(run_dir).display()
+                        );
+                    }
+                }
+            }
+            progress.inc(1);
+            let mean = state.epoch_loss_sum / state.epoch_loss_count.max(1) as f64;
+            progress.set_message(&format!("loss {mean:.4}"));
+            if state.batch < n_batches && state.global_step % config.checkpoint_every == 0 && bad_run == 0 {
+                checkpoint::save(run_dir, &net, &optim, &state)?;
+            }
+        }
+        progress.finish();
+        let (val_l1_mm, val_loss) = validate(&net.valid(), &val, &batcher, config.batch, device)?;
+        let metrics = EpochMetrics {
+            epoch: state.epoch + 1,
+            train_loss: state.epoch_loss_sum / state.epoch_loss_count.max(1) as f64,
+            val_l1_mm,
+            val_loss,
+            skipped_steps: state.skipped_steps,
+            bad_samples: state.bad_samples.len(),
+            seconds: epoch_start.elapsed().as_secs_f64(),
+        };
+        eprintln!(
+            "epoch {}: train loss {:.4}, validation L1 {:.4} mm (loss {:.4}), {:.0} s",
+            metrics.epoch, metrics.train_loss, metrics.val_l1_mm, metrics.val_loss, metrics.seconds
+        );
+        state.history.push(metrics);
+        state.epoch += 1;
+        state.batch = 0;
+        state.epoch_loss_sum = 0.0;
+        state.epoch_loss_count = 0;
+        checkpoint::save(run_dir, &net, &optim, &state)?;
+        write_metrics(run_dir, &state.history)?;
+    }
+    Ok(Fitted { net: net.valid(), state })
+}
+
+/// Mean per-image L1 (mm, useful pixels) and mean loss over a split, in eval mode.
+pub fn validate(
+    net: &DenseDepth,
+    data: &DepthDataset,
+    batcher: &DepthBatcher,
+    batch: usize,
+    device: &Device,
+) -> Result<(f64, f64)> {
+    if data.records.is_empty() {
+        return Ok((f64::NAN, f64::NAN));
+    }
+    let loss_config = DepthLossConfig::new();
+    let useful: f32 = batcher.mask.iter().sum::<f32>().max(1.0);
+    let (mut l1_sum, mut loss_sum, mut images, mut batches) = (0f64, 0f64, 0usize, 0usize);
+    let ids: Vec<usize> = (0..data.records.len()).collect();
+    for chunk in ids.chunks(batch) {
+        let items: Vec<_> = chunk.iter().filter_map(|&i| data.load(i, None).ok()).collect();
+        if items.is_empty() {
+            continue;
+        }
+        let n = items.len();
+        let b = batcher.batch(items, device);
+        let pred = net.forward(b.images);
+        loss_sum += loss_config
+            .forward_masked(pred.clone(), b.depths.clone(), Some(b.masks.clone()))
+            .total
+            .into_scalar::<f32>() as f64;
+        let err_mm: Tensor<4> = (data.scale.tensor_to_mm(pred) - data.scale.tensor_to_mm(b.depths)).abs() * b.masks;
+        let per_image: Vec<f32> = err_mm.sum_dim(3).sum_dim(2).flatten::<1>(0, 3).into_data().try_to_vec::<f32>()?;
+        l1_sum += per_image.iter().map(|&s| (s / useful) as f64).sum::<f64>();
+        images += n;
+        batches += 1;
+    }
+    Ok((l1_sum / images.max(1) as f64, loss_sum / batches.max(1) as f64))
+}
+
+/// The order of an epoch's samples, from the run's seed and the epoch alone (so a resumed run
+/// sees the same order).
+pub fn permutation(n: usize, seed: u64, epoch: u64) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..n).collect();
+    let mut rng = SplitMix64::for_item(seed ^ 0x0e0c, epoch);
+    for i in (1..n).rev() {
+        order.swap(i, rng.below(i + 1));
+    }
+    order
+}
+
+fn write_metrics(run: &Path, history: &[EpochMetrics]) -> Result<()> {
+    dataset::format::write_json(&run.join("metrics.json"), &history)?;
+    let mut csv = String::from("epoch,train_loss,val_l1_mm,val_loss,skipped_steps,bad_samples,seconds\n");
+    for m in history {
+        csv.push_str(&format!(
+            "{},{},{},{},{},{},{:.1}\n",
+            m.epoch, m.train_loss, m.val_l1_mm, m.val_loss, m.skipped_steps, m.bad_samples, m.seconds
+        ));
+    }
+    sensor::io::write_atomic(&run.join("metrics.csv"), csv.as_bytes())?;
+    Ok(())
+}
+
+/// Preset names for `--preset`.
+pub fn preset(name: &str) -> Result<model::DenseNetConfig> {
+    use model::DenseNetConfig as C;
+    Ok(match name {
+        "tiny" => C::tiny(),
+        "compact" => C::compact(),
+        "densenet121" => C::densenet121(),
+        "densenet161" => C::densenet161(),
+        "densenet169" => C::densenet169(),
+        "densenet201" => C::densenet201(),
+        other => bail!("unknown preset {other:?}: tiny, compact, densenet121, densenet161, densenet169, densenet201"),
+    })
+}
