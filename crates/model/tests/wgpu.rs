@@ -52,3 +52,25 @@ fn network_on_wgpu_agrees_with_flex_and_a_training_step_is_finite() {
     let g = to_vec(model.decoder.up2.conv_a.weight.val().grad(&grads).expect("gradient"));
     assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|v| *v != 0.0));
 }
+
+#[test]
+fn a_few_adam_steps_on_wgpu_lower_the_loss() {
+    use burn::optim::{AdamConfig, GradientsParams};
+    let train = model::backend::wgpu_device().autodiff();
+    train.seed(3);
+    let mut net = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&train);
+    let image: Vec<f32> = (0..2 * 3 * 64 * 64).map(|i| ((i * 131) % 997) as f32 / 997.0).collect();
+    let depth: Vec<f32> = (0..2 * 32 * 32).map(|i| 10.0 + ((i * 17) % 300) as f32).collect();
+    let images = Tensor::<4>::from_data(TensorData::new(image, [2, 3, 64, 64]), &train);
+    let target = Tensor::<4>::from_data(TensorData::new(depth, [2, 1, 32, 32]), &train);
+    let mut optim = AdamConfig::new().init();
+    let mut losses = Vec::new();
+    for _ in 0..6 {
+        let loss = DepthLossConfig::new().forward(net.forward(images.clone()), target.clone()).total;
+        losses.push(to_vec(loss.clone())[0]);
+        let grads = GradientsParams::from_grads(loss.backward(), &net);
+        net = optim.step(1e-2, net, grads);
+    }
+    assert!(losses.iter().all(|l| l.is_finite()), "{losses:?}");
+    assert!(losses[5] < losses[0], "the loss must fall on a fixed batch: {losses:?}");
+}

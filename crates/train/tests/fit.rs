@@ -171,7 +171,9 @@ fn non_finite_steps_are_skipped_and_bad_samples_are_named() {
     image::RgbImage::new(100, 100).save(&image).unwrap();
     let e = fit(&tmp.path().join("size"), &config(&data, 1), tiny_start(), &device, false).err().unwrap();
     assert!(format!("{e:#}").contains("image is 100x100"), "{e:#}");
-    // A depth map beyond the sensor's range.
+    // A depth map beyond the sensor's range (with a good image back in place).
+    let other = manifest.samples.iter().find(|s| s.id != victim.id).unwrap();
+    std::fs::copy(data.join(other.image.as_ref().unwrap()), &image).unwrap();
     let mut deep = sensor::DepthMap::zeros(570);
     deep.depth_mm[1000] = 20.0;
     let depth_path = data.join(&victim.depth);
@@ -179,4 +181,58 @@ fn non_finite_steps_are_skipped_and_bad_samples_are_named() {
     let e = fit(&tmp.path().join("deep"), &config(&data, 1), tiny_start(), &device, false).err().unwrap();
     let e = format!("{e:#}");
     assert!(e.contains("outside") && e.contains(depth_path.file_name().unwrap().to_str().unwrap()), "{e}");
+}
+
+#[test]
+fn finetuning_with_a_frozen_encoder_changes_only_the_decoder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    tiny_dataset(&data);
+    let device = model::backend::default_device();
+    let fitted = fit(&tmp.path().join("base"), &config(&data, 1), tiny_start(), &device, false).unwrap();
+    let base = tmp.path().join("base-bundle");
+    train::export::export_net(&fitted.net, &fitted.state, &base).unwrap();
+
+    let (run, tuned) = (tmp.path().join("tune"), tmp.path().join("tuned-bundle"));
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let r = Command::new(BIN)
+        .args(["finetune", "--from", &s(&base), "--data", &s(&data), "--out", &s(&run), "--bundle", &s(&tuned)])
+        .args(["--epochs", "1", "--batch", "2", "--lr", "1e-2", "--freeze-encoder"])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let (a, _) = model::bundle::load_bundle(&base, &device).unwrap();
+    let (b, _) = model::bundle::load_bundle(&tuned, &device).unwrap();
+    let v = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+    assert_eq!(v(a.encoder.conv0.weight.val()), v(b.encoder.conv0.weight.val()), "a frozen encoder keeps its weights");
+    assert_ne!(v(a.decoder.conv3.weight.val()), v(b.decoder.conv3.weight.val()), "the decoder learns");
+}
+
+#[test]
+fn a_pytorch_state_dict_becomes_a_bundle() {
+    let Some(fixtures) = sensor::shared::shared_dir_for_tests("DENSETACT_FIXTURES", "fixtures") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let sensor_json = tmp.path().join("sensor.json");
+    sensor::Sensor::default().save_json(&sensor_json).unwrap();
+    let out = tmp.path().join("bundle");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let r = Command::new(BIN)
+        .args(["import", "--pth", &s(&fixtures.join("densedepth_tiny.pth")), "--sensor", &s(&sensor_json)])
+        .args(["--input", "64x96", "--out", &s(&out)])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let device = model::backend::default_device();
+    let (net, file) = model::bundle::load_bundle(&out, &device).unwrap();
+    assert_eq!((file.input_height_px, file.input_width_px), (64, 96));
+    let direct = model::import::load_pytorch(&fixtures.join("densedepth_tiny.pth"), &device).unwrap().model;
+    let x = Tensor::<4>::random([1, 3, 64, 96], Distribution::Uniform(0.0, 1.0), &device);
+    let v = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+    assert_eq!(v(net.forward(x.clone())), v(direct.forward(x)));
+
+    let r = Command::new(BIN)
+        .args(["import", "--pth", &s(&tmp.path().join("missing.pth")), "--sensor", &s(&sensor_json), "--out", &s(&out)])
+        .output()
+        .unwrap();
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("missing.pth"));
 }
