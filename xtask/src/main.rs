@@ -1,6 +1,7 @@
 //! Project automation. `cargo xtask bench raycast` measures the ray caster against Open3D's
 //! Embree-based RaycastingScene on the same rays, and the generator's throughput.
 
+mod bench_finetune;
 mod bench_model;
 mod bench_raycast;
 mod bench_render;
@@ -34,6 +35,8 @@ enum Bench {
     Model(bench_model::Args),
     /// Simulated unit images: time per stage of a sample; saw-tooth calibration time and error.
     Render(bench_render::Args),
+    /// Fine-tuning a unit-A model for unit B with 5/10/25 % of B's data, vs training on all of B.
+    Finetune(bench_finetune::Args),
 }
 
 fn main() -> ExitCode {
@@ -42,6 +45,7 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Raycast(args) } => bench_raycast::run(args),
         Command::Bench { what: Bench::Model(args) } => bench_model::run(args),
         Command::Bench { what: Bench::Render(args) } => bench_render::run(args),
+        Command::Bench { what: Bench::Finetune(args) } => bench_finetune::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

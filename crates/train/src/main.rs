@@ -73,6 +73,9 @@ struct Common {
     /// Consecutive non-finite steps (each skipped) after which the run stops.
     #[arg(long, default_value_t = 5)]
     max_bad_steps: u64,
+    /// Train on this fraction of the training split (a seeded subset).
+    #[arg(long, default_value_t = 1.0)]
+    train_fraction: f64,
     /// Test hook: the loss of this step is made non-finite.
     #[arg(long, hide = true)]
     inject_nan_step: Option<u64>,
@@ -148,6 +151,7 @@ fn config(c: &Common, input_hw: [usize; 2], freeze_encoder: bool) -> Result<FitC
         on_bad_data: c.on_bad_data,
         max_bad_steps: c.max_bad_steps,
         freeze_encoder,
+        train_fraction: c.train_fraction,
         inject_nan_step: c.inject_nan_step,
     })
 }

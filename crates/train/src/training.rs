@@ -42,9 +42,17 @@ pub struct FitConfig {
     /// Consecutive non-finite steps after which the run stops.
     pub max_bad_steps: u64,
     pub freeze_encoder: bool,
+    /// Train on this fraction of the training split (a seeded subset, at least one sample):
+    /// fine-tuning from a little of a new unit's data.
+    #[serde(default = "one")]
+    pub train_fraction: f64,
     /// Test hook: make the loss of this global step non-finite.
     #[serde(default)]
     pub inject_nan_step: Option<u64>,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// One epoch's numbers (also a row of `metrics.csv`).
@@ -80,7 +88,17 @@ pub struct Fitted {
 pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, resume: bool) -> Result<Fitted> {
     std::fs::create_dir_all(run_dir).with_context(|| format!("{}: cannot create", run_dir.display()))?;
     let train_device = device.clone().autodiff();
-    let train = DepthDataset::open(&config.data, Some(Split::Train), config.input_hw)?;
+    let mut train = DepthDataset::open(&config.data, Some(Split::Train), config.input_hw)?;
+    if !(config.train_fraction > 0.0 && config.train_fraction <= 1.0) {
+        bail!("the training fraction must be in (0, 1], got {}", config.train_fraction);
+    }
+    if config.train_fraction < 1.0 {
+        let keep = ((train.records.len() as f64 * config.train_fraction).ceil() as usize).max(1);
+        let chosen = permutation(train.records.len(), config.seed ^ 0x5b5e7, 0);
+        let mut ids: Vec<usize> = chosen.into_iter().take(keep).collect();
+        ids.sort_unstable();
+        train.records = ids.into_iter().map(|i| train.records[i].clone()).collect();
+    }
     let val = DepthDataset::open(&config.data, Some(Split::Test), config.input_hw)?;
     if train.records.is_empty() {
         bail!("{}: no training samples", config.data.display());

@@ -43,6 +43,7 @@ fn config(data: &Path, epochs: usize) -> FitConfig {
         on_bad_data: OnBadData::Stop,
         max_bad_steps: 3,
         freeze_encoder: false,
+        train_fraction: 1.0,
         inject_nan_step: None,
     }
 }

@@ -1,0 +1,113 @@
+//! Fine-tuning study: a model trained on simulated unit A, evaluated on unit B before and after
+//! fine-tuning with 5, 10 and 25 % of B's training data, against a model trained on all of B's.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use dataset::format::GeneratorParams;
+use dataset::generate::Generator;
+use dataset::{Kit, Renderer, SensorUnit, Skipping, Split};
+use model::{DenseDepth, DenseDepthConfig};
+use train::data::{DepthBatcher, DepthDataset};
+use train::training::{FitConfig, OnBadData, Start, fit, preset, validate};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Samples per unit's dataset.
+    #[arg(long, default_value_t = 400)]
+    samples: u32,
+    #[arg(long, default_value_t = 6)]
+    epochs: usize,
+    #[arg(long, default_value = "compact")]
+    preset: String,
+    /// Network input side (square).
+    #[arg(long, default_value_t = 128)]
+    input: usize,
+    #[arg(long, default_value_t = 4)]
+    batch: usize,
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    /// Work folder (datasets are kept and reused; runs are redone).
+    #[arg(long, default_value = "target/finetune-study")]
+    work: PathBuf,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let device = model::backend::default_device();
+    let input_hw = [args.input, args.input];
+    let kit = Kit::procedural(25.0);
+    let mut data = Vec::new();
+    for (name, seed) in [("unit-a", 1u64), ("unit-b", 2)] {
+        let dir = args.work.join(name);
+        let unit = SensorUnit::from_seed(seed, 25.0);
+        let renderer = Renderer::for_crop(&unit);
+        let params = GeneratorParams { unit: Some(seed), ..GeneratorParams::new(seed, args.samples, &kit.source) };
+        Generator {
+            out: dir.clone(),
+            sensor: &unit.sensor,
+            kit: &kit,
+            params,
+            skipping: Skipping::On,
+            renderer: Some(&renderer),
+        }
+        .run()?;
+        data.push(dir);
+    }
+    let (a, b) = (&data[0], &data[1]);
+    let model_config = DenseDepthConfig::new(preset(&args.preset)?);
+    let cfg = |dir: &PathBuf, fraction: f64| FitConfig {
+        data: dir.clone(),
+        input_hw,
+        epochs: args.epochs,
+        batch: args.batch,
+        lr: args.lr,
+        seed: 7,
+        checkpoint_every: 1_000_000,
+        on_bad_data: OnBadData::Stop,
+        max_bad_steps: 5,
+        freeze_encoder: false,
+        train_fraction: fraction,
+        inject_nan_step: None,
+    };
+    let b_test = DepthDataset::open(b, Some(Split::Test), input_hw)?;
+    let batcher = DepthBatcher { input_hw, mask: b_test.mask.clone() };
+    let on_b = |net: &DenseDepth| -> Result<f64> { Ok(validate(net, &b_test, &batcher, args.batch, &device)?.0) };
+    let run_dir = |name: &str| {
+        let d = args.work.join("runs").join(name);
+        std::fs::remove_dir_all(&d).ok();
+        d
+    };
+    let fresh = || Start { model_config: model_config.clone(), weights: None };
+
+    let trained_a = fit(&run_dir("a"), &cfg(a, 1.0), fresh(), &device, false)?;
+    let a_own = trained_a.state.history.last().map_or(f64::NAN, |m| m.val_l1_mm);
+    let before = on_b(&trained_a.net)?;
+    let mut rows = vec![("A on A's test split".to_string(), a_own), ("A on B, before fine-tuning".to_string(), before)];
+    for fraction in [0.05, 0.10, 0.25] {
+        let start = Start { model_config: model_config.clone(), weights: Some(trained_a.net.clone()) };
+        let tuned =
+            fit(&run_dir(&format!("ft{}", (fraction * 100.0) as u32)), &cfg(b, fraction), start, &device, false)?;
+        rows.push((format!("A fine-tuned on {:.0} % of B", fraction * 100.0), on_b(&tuned.net)?));
+    }
+    let full_b = fit(&run_dir("b"), &cfg(b, 1.0), fresh(), &device, false)?;
+    let full = on_b(&full_b.net)?;
+    rows.push(("trained on all of B".to_string(), full));
+
+    println!(
+        "\n{} preset, {}x{} input, {} samples per unit, {} epochs per run, batch {}, lr {}; test split of unit B ({} images)",
+        args.preset,
+        args.input,
+        args.input,
+        args.samples,
+        args.epochs,
+        args.batch,
+        args.lr,
+        b_test.records.len()
+    );
+    println!("| model | mean per-image L1 on B's test split (mm) | vs all of B |");
+    println!("|---|---:|---:|");
+    for (name, l1) in rows {
+        println!("| {name} | {l1:.4} | {:.2}x |", l1 / full);
+    }
+    Ok(())
+}
