@@ -12,8 +12,10 @@
 //! DIR/manifest.json         written last: sensor, parameters, every sample record, summary
 //! ```
 //!
-//! A sample's record is written after its images, each atomically, so a record on disk means
-//! a complete sample: that is what makes generation resumable.
+//! A sample's record is written after its images, each atomically (temporary file, rename), so
+//! after a killed run a record on disk means a complete sample: that is what makes generation
+//! resumable. Sample files are not synced one by one; after a power cut a resumed run checks
+//! that each record parses and each PNG ends whole, and makes a sample again where not.
 
 use std::path::{Path, PathBuf};
 

@@ -113,17 +113,19 @@ impl Generator<'_> {
         let (depth, cast) = caster.depth_map(self.sensor, rays);
         let name = sample_name(id);
         let depth_rel = format!("depth/{name}.png");
-        depth.save_png_um(&self.out.join(&depth_rel))?;
+        // Sample files are renamed into place without a sync each (the sync cost more than
+        // the encoding); a resume checks that they are whole instead.
+        sensor::io::write_atomic_unsynced(&self.out.join(&depth_rel), &depth.to_png_um())?;
         if self.params.depth_u8 {
             let bytes = depth.to_png_u8(self.sensor.max_depth_mm as f32);
-            sensor::io::write_atomic(&self.out.join(format!("depth_u8/{name}.png")), &bytes)?;
+            sensor::io::write_atomic_unsynced(&self.out.join(format!("depth_u8/{name}.png")), &bytes)?;
         }
         let image = match self.renderer {
             Some(renderer) => {
                 let rel = format!("images/{name}.png");
                 let noise_seed = SplitMix64::for_item(self.params.seed ^ 0x1a6e, id as u64).next_u64();
                 let img = renderer.render(&depth.depth_mm, Some(noise_seed));
-                sensor::io::write_atomic(&self.out.join(&rel), &encode_png_rgb(&img))?;
+                sensor::io::write_atomic_unsynced(&self.out.join(&rel), &encode_png_rgb(&img))?;
                 Some(rel)
             }
             None => None,
@@ -138,7 +140,8 @@ impl Generator<'_> {
             stats: DepthStats::of(&depth, mask),
             cast,
         };
-        write_json(&self.out.join(format!("samples/{name}.json")), &record)?;
+        let json = serde_json::to_vec_pretty(&record).expect("record serialises");
+        sensor::io::write_atomic_unsynced(&self.out.join(format!("samples/{name}.json")), &json)?;
         Ok(record)
     }
 
@@ -184,17 +187,34 @@ impl Generator<'_> {
     /// Records of samples finished by an earlier run.
     fn finished_records(&self) -> Result<BTreeMap<u32, SampleRecord>> {
         let mut done = BTreeMap::new();
+        let mut damaged = 0;
         for id in 0..self.params.count {
             let path = self.out.join(format!("samples/{}.json", sample_name(id)));
             if !path.exists() {
                 continue;
             }
-            let record: SampleRecord = read_json(&path)?;
-            let files_exist = std::iter::once(&record.depth).chain(&record.image).all(|f| self.out.join(f).is_file());
-            if record.id != id || !files_exist || record.image.is_some() != self.renderer.is_some() {
-                bail!("{}: record does not match sample {id} or its image files are missing", path.display());
+            // After a power cut a record or its files may be short: such a sample is made again.
+            let Ok(record) = read_json::<SampleRecord>(&path) else {
+                damaged += 1;
+                std::fs::remove_file(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
+                continue;
+            };
+            if record.id != id || record.image.is_some() != self.renderer.is_some() {
+                bail!("{}: record does not match sample {id} of this dataset", path.display());
+            }
+            let mut files: Vec<String> = std::iter::once(record.depth.clone()).chain(record.image.clone()).collect();
+            if self.params.depth_u8 {
+                files.push(format!("depth_u8/{}.png", sample_name(id)));
+            }
+            if !files.iter().all(|f| sensor::io::png_is_complete(&self.out.join(f))) {
+                damaged += 1;
+                std::fs::remove_file(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
+                continue;
             }
             done.insert(id, record);
+        }
+        if damaged > 0 {
+            eprintln!("{damaged} samples left incomplete by an interrupted run will be made again");
         }
         Ok(done)
     }

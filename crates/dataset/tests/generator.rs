@@ -60,6 +60,16 @@ fn killed_and_resumed_run_equals_an_uninterrupted_one() {
     let stdout = String::from_utf8_lossy(&resumed.stdout);
     assert!(stdout.contains("from an earlier run") && stdout.contains("contact"), "{stdout}");
 
+    // As a power cut could leave them: a short PNG and a short record.
+    let png = a.join("depth/000005.png");
+    let bytes = std::fs::read(&png).unwrap();
+    std::fs::write(&png, &bytes[..bytes.len() / 2]).unwrap();
+    std::fs::write(a.join("samples/000007.json"), b"{\"id\": 7, \"spl").unwrap();
+    let repaired = generate(&a, count, &[]);
+    assert!(repaired.status.success(), "{}", String::from_utf8_lossy(&repaired.stderr));
+    assert!(String::from_utf8_lossy(&repaired.stderr).contains("2 samples left incomplete"));
+    assert!(String::from_utf8_lossy(&repaired.stdout).contains("(2 new"));
+
     let fresh = generate(&b, count, &[]);
     assert!(fresh.status.success());
     let (fa, fb) = (files(&a), files(&b));
