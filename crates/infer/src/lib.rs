@@ -1,1 +1,9 @@
-//! Light inference from an exported bundle (to come: see the project issues).
+//! Light inference from an exported bundle: depth maps, contact masks and point clouds from
+//! camera frames. Depends on the network and the bundle format only: no autodiff, no training.
+
+pub mod cloud;
+pub mod colour;
+pub mod predictor;
+
+pub use cloud::{PointCloud, write_ply};
+pub use predictor::{InferError, Predictor};

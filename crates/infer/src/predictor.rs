@@ -1,0 +1,162 @@
+//! Frames to depth maps with a bundle's network.
+
+use std::path::{Path, PathBuf};
+
+use burn::tensor::{Device, Tensor, TensorData};
+use image::imageops::FilterType;
+use image::{ImageBuffer, Luma, RgbImage};
+use model::DenseDepth;
+use model::bundle::{BundleFile, load_bundle};
+use sensor::DepthMap;
+
+#[derive(Debug, thiserror::Error)]
+pub enum InferError {
+    #[error(transparent)]
+    Bundle(#[from] model::bundle::BundleError),
+    #[error("{path}: {message}")]
+    File { path: PathBuf, message: String },
+    #[error("frame is {width}x{height} px; this bundle's sensor crop is {crop}x{crop}")]
+    FrameSize { width: u32, height: u32, crop: u32 },
+}
+
+/// When a frame counts as untouched: fewer than `min_pixels` useful pixels differ from the
+/// reference image by more than `grey_levels` (mean over the channels).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContactGate {
+    pub grey_levels: f32,
+    pub min_pixels: usize,
+}
+
+impl Default for ContactGate {
+    /// About 4 to 5 standard deviations of a simulated unit's noise at mid-grey, and a patch of
+    /// 200 pixels (0.08 % of the disk): noise alone almost never reaches both.
+    fn default() -> Self {
+        ContactGate { grey_levels: 15.0, min_pixels: 200 }
+    }
+}
+
+/// A loaded bundle, ready to turn frames into depth maps.
+pub struct Predictor {
+    net: DenseDepth,
+    pub file: BundleFile,
+    device: Device,
+    /// The unit's no-contact image, if the bundle has one.
+    pub reference: Option<RgbImage>,
+    /// Useful pixels of the crop (row-major).
+    pub mask: Vec<bool>,
+    pub gate: ContactGate,
+}
+
+impl Predictor {
+    /// Loads `dir` (a bundle) onto `device`; BatchNorms are folded into their convolutions.
+    pub fn load(dir: &Path, device: &Device) -> Result<Self, InferError> {
+        let (net, file) = load_bundle(dir, device)?;
+        let reference = match &file.reference_image {
+            Some(name) => {
+                let path = dir.join(name);
+                let img = image::open(&path)
+                    .map_err(|e| InferError::File {
+                        path: path.clone(),
+                        message: format!("not a readable image: {e}"),
+                    })?
+                    .to_rgb8();
+                let crop = file.sensor.crop_size_px;
+                if img.dimensions() != (crop, crop) {
+                    return Err(InferError::File {
+                        path,
+                        message: format!(
+                            "reference image is {}x{}, the crop is {crop}x{crop}",
+                            img.width(),
+                            img.height()
+                        ),
+                    });
+                }
+                Some(img)
+            }
+            None => None,
+        };
+        let mask = file.sensor.valid_mask();
+        Ok(Predictor { net: net.folded(), file, device: device.clone(), reference, mask, gate: ContactGate::default() })
+    }
+
+    fn check(&self, frame: &RgbImage) -> Result<(), InferError> {
+        let crop = self.file.sensor.crop_size_px;
+        if frame.dimensions() != (crop, crop) {
+            return Err(InferError::FrameSize { width: frame.width(), height: frame.height(), crop });
+        }
+        Ok(())
+    }
+
+    /// Whether `frame` differs from the unit's reference by more than noise (always true
+    /// without a reference image).
+    pub fn has_contact(&self, frame: &RgbImage) -> bool {
+        let Some(reference) = &self.reference else { return true };
+        let limit = self.gate.grey_levels * 3.0;
+        let mut changed = 0;
+        for ((p, q), &useful) in frame.pixels().zip(reference.pixels()).zip(&self.mask) {
+            let diff: f32 = (0..3).map(|c| (p.0[c] as f32 - q.0[c] as f32).abs()).sum();
+            if useful && diff > limit {
+                changed += 1;
+                if changed >= self.gate.min_pixels {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
+    /// Depth (mm) on the crop's grid, zero outside the useful disk. A frame with no contact
+    /// (see [`has_contact`](Self::has_contact)) returns zeros without running the network.
+    pub fn predict(&self, frame: &RgbImage) -> Result<DepthMap, InferError> {
+        self.check(frame)?;
+        if !self.has_contact(frame) {
+            return Ok(DepthMap::zeros(self.file.sensor.crop_size_px));
+        }
+        Ok(self.predict_network(std::slice::from_ref(frame))?.remove(0))
+    }
+
+    /// The network's depth maps for a batch of frames (no contact gate).
+    pub fn predict_network(&self, frames: &[RgbImage]) -> Result<Vec<DepthMap>, InferError> {
+        for f in frames {
+            self.check(f)?;
+        }
+        if frames.is_empty() {
+            return Ok(Vec::new());
+        }
+        let (h, w) = (self.file.input_height_px, self.file.input_width_px);
+        let mut input = vec![0f32; frames.len() * 3 * h * w];
+        for (n, frame) in frames.iter().enumerate() {
+            let small = image::imageops::resize(frame, w as u32, h as u32, FilterType::Triangle);
+            let base = n * 3 * h * w;
+            for (k, px) in small.pixels().enumerate() {
+                for c in 0..3 {
+                    input[base + c * h * w + k] = px.0[c] as f32 / 255.0;
+                }
+            }
+        }
+        let x = Tensor::<4>::from_data(TensorData::new(input, [frames.len(), 3, h, w]), &self.device);
+        let out = self.net.forward(x);
+        let [_, _, oh, ow] = out.dims();
+        let values: Vec<f32> = out.into_data().try_to_vec::<f32>().expect("f32 output");
+        let scale = self.file.depth_scale;
+        let crop = self.file.sensor.crop_size_px;
+        let max = self.file.sensor.max_depth_mm as f32;
+        Ok(values
+            .chunks(oh * ow)
+            .map(|plane| {
+                let mm: Vec<f32> = plane.iter().map(|&v| scale.to_mm(v)).collect();
+                let img: ImageBuffer<Luma<f32>, Vec<f32>> =
+                    ImageBuffer::from_raw(ow as u32, oh as u32, mm).expect("output plane");
+                let full = image::imageops::resize(&img, crop, crop, FilterType::Triangle).into_raw();
+                let depth_mm =
+                    full.iter().zip(&self.mask).map(|(&d, &m)| if m { d.clamp(0.0, max) } else { 0.0 }).collect();
+                DepthMap { size_px: crop, depth_mm }
+            })
+            .collect())
+    }
+
+    /// Pixels pressed deeper than `threshold_mm`.
+    pub fn contact_mask(depth: &DepthMap, threshold_mm: f32) -> Vec<bool> {
+        depth.depth_mm.iter().map(|&d| d > threshold_mm).collect()
+    }
+}
