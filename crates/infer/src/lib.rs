@@ -3,6 +3,7 @@
 
 pub mod cloud;
 pub mod colour;
+pub mod eval;
 pub mod predictor;
 
 pub use cloud::{PointCloud, write_ply};

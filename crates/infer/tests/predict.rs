@@ -124,3 +124,54 @@ fn infer_depends_on_neither_autodiff_nor_training() {
         assert!(!tree.contains(banned), "infer must not depend on {banned}");
     }
 }
+
+#[test]
+fn eval_writes_statistics_per_split_errors_and_a_violin_plot() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = bundle(&dir);
+    let data = tmp.path().join("data");
+    let kit = dataset::Kit::procedural(25.0);
+    let params = dataset::format::GeneratorParams {
+        unit: Some(3),
+        test_fraction: 0.3,
+        ..dataset::format::GeneratorParams::new(4, 10, &kit.source)
+    };
+    let unit = renderer.unit().clone();
+    dataset::generate::Generator {
+        out: data.clone(),
+        sensor: &unit.sensor,
+        kit: &kit,
+        params,
+        skipping: dataset::Skipping::On,
+        renderer: Some(&renderer),
+    }
+    .run()
+    .unwrap();
+    let out = tmp.path().join("eval");
+    let r = Command::new(env!("CARGO_BIN_EXE_infer"))
+        .args(["eval", "--bundle", dir.to_str().unwrap(), "--data", data.to_str().unwrap()])
+        .args(["--split", "all", "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
+    let mut n = 0;
+    for split in ["train", "test"] {
+        for key in ["l1_mm", "l2_mm", "contact_l1_mm", "zero_l1_mm", "zero_contact_l1_mm"] {
+            assert!(stats[split][key]["mean"].is_number(), "{split}.{key}: {}", stats[split][key]);
+        }
+        n += stats[split]["l1_mm"]["n"].as_u64().unwrap();
+    }
+    assert_eq!(n, 10);
+    let csv = std::fs::read_to_string(out.join("errors.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 11);
+    assert!(std::fs::read_to_string(out.join("violin.svg")).unwrap().contains("<polygon"));
+    let r = Command::new(env!("CARGO_BIN_EXE_infer"))
+        .args(["eval", "--bundle", dir.to_str().unwrap(), "--data", data.to_str().unwrap()])
+        .args(["--split", "val", "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("--split"));
+}

@@ -1,0 +1,269 @@
+//! Evaluation as in the paper: per-image errors in millimetres over useful pixels (and over
+//! contact pixels), beside the zero predictor's, summarised per split and drawn as violins.
+
+use serde::Serialize;
+
+/// Depth above which a true pixel counts as in contact (mm), as in the dataset's statistics.
+pub const CONTACT_THRESHOLD_MM: f32 = 0.02;
+
+/// The uncertainty of 3D-printed ground truth (mm), drawn on the violin plot as in the paper.
+pub const GROUND_TRUTH_UNCERTAINTY_MM: f64 = 0.11;
+
+/// One image's errors.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ImageErrors {
+    pub id: u32,
+    pub split: String,
+    /// Mean absolute error over useful pixels (mm).
+    pub l1_mm: f64,
+    /// Mean squared error over useful pixels (mm^2), the paper's "L2".
+    pub l2_mm: f64,
+    /// Mean absolute error over true contact pixels (mm); NaN without contact.
+    pub contact_l1_mm: f64,
+    /// The zero predictor's mean absolute error over useful pixels (mm).
+    pub zero_l1_mm: f64,
+    /// The zero predictor's over true contact pixels (mm); NaN without contact.
+    pub zero_contact_l1_mm: f64,
+    pub contact_pixels: usize,
+}
+
+impl ImageErrors {
+    pub fn of(id: u32, split: &str, pred_mm: &[f32], true_mm: &[f32], mask: &[bool]) -> Self {
+        let (mut n, mut l1, mut l2, mut zero) = (0usize, 0f64, 0f64, 0f64);
+        let (mut nc, mut cl1, mut czero) = (0usize, 0f64, 0f64);
+        for ((&p, &t), &m) in pred_mm.iter().zip(true_mm).zip(mask) {
+            if !m {
+                continue;
+            }
+            let e = (p - t).abs() as f64;
+            n += 1;
+            l1 += e;
+            l2 += e * e;
+            zero += t.abs() as f64;
+            if t > CONTACT_THRESHOLD_MM {
+                nc += 1;
+                cl1 += e;
+                czero += t as f64;
+            }
+        }
+        let n = n.max(1) as f64;
+        let per_contact = |s: f64| if nc > 0 { s / nc as f64 } else { f64::NAN };
+        ImageErrors {
+            id,
+            split: split.to_string(),
+            l1_mm: l1 / n,
+            l2_mm: l2 / n,
+            contact_l1_mm: per_contact(cl1),
+            zero_l1_mm: zero / n,
+            zero_contact_l1_mm: per_contact(czero),
+            contact_pixels: nc,
+        }
+    }
+}
+
+/// Summary statistics of a set of values (NaNs left out).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Summary {
+    pub n: usize,
+    pub mean: f64,
+    pub sd: f64,
+    pub median: f64,
+    pub q1: f64,
+    pub q3: f64,
+    pub min: f64,
+    pub max: f64,
+}
+
+impl Summary {
+    pub fn of(values: impl IntoIterator<Item = f64>) -> Self {
+        let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        if n == 0 {
+            return Summary {
+                n,
+                mean: f64::NAN,
+                sd: f64::NAN,
+                median: f64::NAN,
+                q1: f64::NAN,
+                q3: f64::NAN,
+                min: f64::NAN,
+                max: f64::NAN,
+            };
+        }
+        let mean = v.iter().sum::<f64>() / n as f64;
+        // Sample standard deviation (n - 1), zero for one value.
+        let sd = if n > 1 { (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt() } else { 0.0 };
+        Summary {
+            n,
+            mean,
+            sd,
+            median: quantile(&v, 0.5),
+            q1: quantile(&v, 0.25),
+            q3: quantile(&v, 0.75),
+            min: v[0],
+            max: v[n - 1],
+        }
+    }
+}
+
+/// Linear-interpolation quantile of sorted values (numpy's default).
+pub fn quantile(sorted: &[f64], q: f64) -> f64 {
+    let pos = q * (sorted.len() - 1) as f64;
+    let (i, f) = (pos.floor() as usize, pos.fract());
+    if i + 1 < sorted.len() { sorted[i] * (1.0 - f) + sorted[i + 1] * f } else { sorted[i] }
+}
+
+/// `stats.json` for one split.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SplitStats {
+    pub l1_mm: Summary,
+    pub l2_mm: Summary,
+    pub contact_l1_mm: Summary,
+    pub zero_l1_mm: Summary,
+    pub zero_contact_l1_mm: Summary,
+    /// Frames the contact gate answered without running the network.
+    pub skipped_frames: usize,
+}
+
+impl SplitStats {
+    pub fn of(images: &[ImageErrors], skipped_frames: usize) -> Self {
+        let s = |f: fn(&ImageErrors) -> f64| Summary::of(images.iter().map(f));
+        SplitStats {
+            l1_mm: s(|e| e.l1_mm),
+            l2_mm: s(|e| e.l2_mm),
+            contact_l1_mm: s(|e| e.contact_l1_mm),
+            zero_l1_mm: s(|e| e.zero_l1_mm),
+            zero_contact_l1_mm: s(|e| e.zero_contact_l1_mm),
+            skipped_frames,
+        }
+    }
+}
+
+/// A violin plot (SVG) of per-image L1 for each named split, with the ground truth's
+/// uncertainty as a dashed line.
+pub fn violin_svg(groups: &[(&str, Vec<f64>)]) -> String {
+    let (w, h, left, bottom, top) = (640.0, 420.0, 70.0, 50.0, 30.0);
+    let all: Vec<f64> = groups.iter().flat_map(|g| g.1.iter().copied()).filter(|v| v.is_finite()).collect();
+    let y_max = all.iter().copied().fold(GROUND_TRUTH_UNCERTAINTY_MM, f64::max) * 1.1;
+    let y = |v: f64| top + (h - top - bottom) * (1.0 - v / y_max);
+    let mut svg = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" font-family=\"sans-serif\" font-size=\"13\">\n\
+         <rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n\
+         <text x=\"{}\" y=\"18\" text-anchor=\"middle\">Per-image mean L1 error over useful pixels</text>\n",
+        w / 2.0
+    );
+    // Axis and ticks.
+    svg += &format!("<line x1=\"{left}\" y1=\"{top}\" x2=\"{left}\" y2=\"{}\" stroke=\"black\"/>\n", h - bottom);
+    for k in 0..=5 {
+        let v = y_max * k as f64 / 5.0;
+        svg += &format!(
+            "<line x1=\"{}\" y1=\"{yv:.1}\" x2=\"{left}\" y2=\"{yv:.1}\" stroke=\"black\"/><text x=\"{}\" y=\"{:.1}\" text-anchor=\"end\">{v:.3}</text>\n",
+            left - 5.0,
+            left - 8.0,
+            y(v) + 4.0,
+            yv = y(v)
+        );
+    }
+    svg += &format!(
+        "<text x=\"18\" y=\"{:.1}\" transform=\"rotate(-90 18 {:.1})\" text-anchor=\"middle\">L1 (mm)</text>\n",
+        h / 2.0,
+        h / 2.0
+    );
+    let slot = (w - left - 20.0) / groups.len().max(1) as f64;
+    let colours = ["#4c72b0", "#dd8452", "#55a868", "#c44e52"];
+    for (g, (name, values)) in groups.iter().enumerate() {
+        let cx = left + slot * (g as f64 + 0.5);
+        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+        v.sort_by(f64::total_cmp);
+        svg += &format!(
+            "<text x=\"{cx:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{name} (n = {})</text>\n",
+            h - bottom + 20.0,
+            v.len()
+        );
+        if v.is_empty() {
+            continue;
+        }
+        // Gaussian kernel density, Silverman's bandwidth.
+        let s = Summary::of(v.iter().copied());
+        let bw = (1.06 * s.sd.max(1e-6) * (v.len() as f64).powf(-0.2)).max(y_max * 0.01);
+        let steps = 80;
+        let (lo, hi) = ((s.min - 2.0 * bw).max(0.0), s.max + 2.0 * bw);
+        let dens: Vec<(f64, f64)> = (0..=steps)
+            .map(|k| {
+                let t = lo + (hi - lo) * k as f64 / steps as f64;
+                let d = v.iter().map(|x| (-0.5 * ((t - x) / bw).powi(2)).exp()).sum::<f64>();
+                (t, d)
+            })
+            .collect();
+        let peak = dens.iter().map(|d| d.1).fold(0.0, f64::max).max(1e-12);
+        let half = slot * 0.4;
+        let mut pts: Vec<String> =
+            dens.iter().map(|(t, d)| format!("{:.1},{:.1}", cx + half * d / peak, y(*t))).collect();
+        pts.extend(dens.iter().rev().map(|(t, d)| format!("{:.1},{:.1}", cx - half * d / peak, y(*t))));
+        let colour = colours[g % colours.len()];
+        svg += &format!(
+            "<polygon points=\"{}\" fill=\"{colour}\" fill-opacity=\"0.6\" stroke=\"{colour}\"/>\n",
+            pts.join(" ")
+        );
+        svg += &format!(
+            "<line x1=\"{cx:.1}\" y1=\"{:.1}\" x2=\"{cx:.1}\" y2=\"{:.1}\" stroke=\"black\" stroke-width=\"4\"/>\n\
+             <circle cx=\"{cx:.1}\" cy=\"{:.1}\" r=\"4\" fill=\"white\" stroke=\"black\"/>\n\
+             <line x1=\"{:.1}\" y1=\"{ym:.1}\" x2=\"{:.1}\" y2=\"{ym:.1}\" stroke=\"black\"/>\n\
+             <text x=\"{:.1}\" y=\"{:.1}\">mean {:.3}</text>\n",
+            y(s.q1),
+            y(s.q3),
+            y(s.median),
+            cx - half * 0.5,
+            cx + half * 0.5,
+            cx + half * 0.55,
+            y(s.mean) + 4.0,
+            s.mean,
+            ym = y(s.mean)
+        );
+    }
+    let yu = y(GROUND_TRUTH_UNCERTAINTY_MM);
+    svg += &format!(
+        "<line x1=\"{left}\" y1=\"{yu:.1}\" x2=\"{:.1}\" y2=\"{yu:.1}\" stroke=\"#c00\" stroke-dasharray=\"6 4\"/>\n\
+         <text x=\"{:.1}\" y=\"{:.1}\" fill=\"#c00\" text-anchor=\"end\">ground-truth uncertainty {GROUND_TRUTH_UNCERTAINTY_MM} mm</text>\n</svg>\n",
+        w - 20.0,
+        w - 22.0,
+        yu - 5.0
+    );
+    svg
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_of_a_hand_made_prediction() {
+        // Four useful pixels (one masked out): truth 0, 0, 1, 2 mm; prediction 0.5, 0, 1.5, 1.
+        let truth = [0.0, 0.0, 1.0, 2.0, 9.0];
+        let pred = [0.5, 0.0, 1.5, 1.0, 0.0];
+        let mask = [true, true, true, true, false];
+        let e = ImageErrors::of(3, "test", &pred, &truth, &mask);
+        assert!((e.l1_mm - 2.0 / 4.0).abs() < 1e-12);
+        assert!((e.l2_mm - (0.25 + 0.25 + 1.0) / 4.0).abs() < 1e-12);
+        assert!((e.contact_l1_mm - 1.5 / 2.0).abs() < 1e-12);
+        assert!((e.zero_l1_mm - 3.0 / 4.0).abs() < 1e-12);
+        assert!((e.zero_contact_l1_mm - 1.5).abs() < 1e-12);
+        assert_eq!(e.contact_pixels, 2);
+        let none = ImageErrors::of(4, "test", &[0.0; 2], &[0.0; 2], &[true; 2]);
+        assert!(none.contact_l1_mm.is_nan() && none.l1_mm == 0.0);
+    }
+
+    #[test]
+    fn summaries_match_hand_computed_values() {
+        let s = Summary::of([4.0, 1.0, 3.0, 2.0, f64::NAN]);
+        assert_eq!((s.n, s.min, s.max), (4, 1.0, 4.0));
+        assert!((s.mean - 2.5).abs() < 1e-12);
+        assert!((s.sd - (5.0f64 / 3.0).sqrt()).abs() < 1e-12);
+        assert!((s.median - 2.5).abs() < 1e-12);
+        assert!((s.q1 - 1.75).abs() < 1e-12 && (s.q3 - 3.25).abs() < 1e-12);
+        let svg = violin_svg(&[("train", vec![0.2, 0.25, 0.3]), ("test", vec![0.28, 0.31])]);
+        assert!(svg.starts_with("<svg") && svg.contains("train (n = 3)") && svg.contains("ground-truth uncertainty"));
+        assert_eq!(svg.matches("<polygon").count(), 2);
+    }
+}
