@@ -3,8 +3,8 @@
 use std::path::{Path, PathBuf};
 
 use burn::tensor::{Device, Tensor, TensorData};
+use image::RgbImage;
 use image::imageops::FilterType;
-use image::{ImageBuffer, Luma, RgbImage};
 use model::DenseDepth;
 use model::bundle::{BundleFile, load_bundle};
 use sensor::DepthMap;
@@ -145,9 +145,8 @@ impl Predictor {
             .chunks(oh * ow)
             .map(|plane| {
                 let mm: Vec<f32> = plane.iter().map(|&v| scale.to_mm(v)).collect();
-                let img: ImageBuffer<Luma<f32>, Vec<f32>> =
-                    ImageBuffer::from_raw(ow as u32, oh as u32, mm).expect("output plane");
-                let full = image::imageops::resize(&img, crop, crop, FilterType::Triangle).into_raw();
+                // Not `image`'s resize: it clamps float pixels to [0, 1].
+                let full = sensor::resample::resize_plane(&mm, [oh, ow], [crop as usize, crop as usize]);
                 let depth_mm =
                     full.iter().zip(&self.mask).map(|(&d, &m)| if m { d.clamp(0.0, max) } else { 0.0 }).collect();
                 DepthMap { size_px: crop, depth_mm }

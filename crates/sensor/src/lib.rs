@@ -8,6 +8,7 @@
 mod correspondence;
 mod depth;
 pub mod io;
+pub mod resample;
 mod sensor;
 pub mod shared;
 

@@ -14,7 +14,6 @@ use dataset::Split;
 use dataset::format::{Manifest, SampleRecord};
 use dataset::rng::SplitMix64;
 use image::imageops::FilterType;
-use image::{ImageBuffer, Luma};
 use model::DepthScale;
 use sensor::{DepthMap, Sensor};
 
@@ -161,11 +160,9 @@ impl Dataset<DepthItem, DataError> for DepthDataset {
     }
 }
 
-/// A square plane resized to `[h, w]` (triangle filter).
-fn resize_plane(values: &[f32], side: usize, [h, w]: [usize; 2]) -> Vec<f32> {
-    let img: ImageBuffer<Luma<f32>, Vec<f32>> =
-        ImageBuffer::from_raw(side as u32, side as u32, values.to_vec()).expect("square plane");
-    image::imageops::resize(&img, w as u32, h as u32, FilterType::Triangle).into_raw()
+/// A square plane resized to `[h, w]` (triangle filter, values kept as they are).
+fn resize_plane(values: &[f32], side: usize, hw: [usize; 2]) -> Vec<f32> {
+    sensor::resample::resize_plane(values, [side, side], hw)
 }
 
 /// Output pixels that lie wholly on useful crop pixels.

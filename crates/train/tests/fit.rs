@@ -83,6 +83,15 @@ fn a_tiny_dataset_trains_and_its_bundle_predicts_the_same() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     tiny_dataset(&data);
+    // Targets keep depths above 1 mm (a float image resize would clamp them there).
+    let set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
+    let deepest = (0..set.records.len())
+        .max_by(|&a, &b| set.records[a].stats.max_depth_mm.total_cmp(&set.records[b].stats.max_depth_mm));
+    let deepest = deepest.unwrap();
+    assert!(set.records[deepest].stats.max_depth_mm > 2.0);
+    let item = set.load(deepest, None).unwrap();
+    let max_mm = item.depth.iter().map(|&v| set.scale.to_mm(v)).fold(0.0f32, f32::max);
+    assert!(max_mm > 1.5, "targets are cut at {max_mm} mm");
     let device = model::backend::default_device();
     let run = tmp.path().join("run");
     let fitted = fit(&run, &config(&data, 2), tiny_start(), &device, false).unwrap();

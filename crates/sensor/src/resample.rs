@@ -1,0 +1,75 @@
+//! Resizing single-channel float planes (depth in millimetres) without clamping.
+//!
+//! The `image` crate's resize clamps float pixels to [0, 1], which silently cuts depth maps at
+//! 1 mm; this separable triangle filter keeps every value. Pixel centres are aligned (half-pixel
+//! convention) and the filter widens when shrinking, so it averages the pixels it replaces.
+
+/// Weights of a 1-D triangle resampling from `n_src` to `n_dst` samples: per output sample, the
+/// first input index and its weights (summing to one).
+fn weights(n_src: usize, n_dst: usize) -> Vec<(usize, Vec<f32>)> {
+    let scale = n_src as f64 / n_dst as f64;
+    let radius = scale.max(1.0);
+    (0..n_dst)
+        .map(|i| {
+            let centre = (i as f64 + 0.5) * scale - 0.5;
+            let lo = ((centre - radius).floor() as i64 + 1).max(0) as usize;
+            let hi = ((centre + radius).ceil() as i64 - 1).min(n_src as i64 - 1).max(lo as i64) as usize;
+            let mut w: Vec<f64> = (lo..=hi).map(|j| (1.0 - (j as f64 - centre).abs() / radius).max(0.0)).collect();
+            let sum: f64 = w.iter().sum();
+            if sum > 0.0 {
+                w.iter_mut().for_each(|v| *v /= sum);
+            } else {
+                // Only possible at the very edge: take the nearest sample.
+                w = vec![0.0; hi - lo + 1];
+                let nearest = (centre.round().clamp(lo as f64, hi as f64) as usize) - lo;
+                w[nearest] = 1.0;
+            }
+            (lo, w.into_iter().map(|v| v as f32).collect())
+        })
+        .collect()
+}
+
+/// Resizes a row-major `[height, width]` plane to `[new_height, new_width]`.
+pub fn resize_plane(values: &[f32], [height, width]: [usize; 2], [new_height, new_width]: [usize; 2]) -> Vec<f32> {
+    assert_eq!(values.len(), height * width, "plane size");
+    let (wx, wy) = (weights(width, new_width), weights(height, new_height));
+    let mut rows = vec![0f32; height * new_width];
+    for y in 0..height {
+        let src = &values[y * width..(y + 1) * width];
+        for (x, (lo, w)) in wx.iter().enumerate() {
+            rows[y * new_width + x] = w.iter().zip(&src[*lo..]).map(|(a, b)| a * b).sum();
+        }
+    }
+    let mut out = vec![0f32; new_height * new_width];
+    for (y, (lo, w)) in wy.iter().enumerate() {
+        for (k, wk) in w.iter().enumerate() {
+            let src = &rows[(lo + k) * new_width..(lo + k + 1) * new_width];
+            for (o, s) in out[y * new_width..(y + 1) * new_width].iter_mut().zip(src) {
+                *o += wk * s;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keeps_large_values_constants_and_averages() {
+        // A constant plane of 7 mm stays 7 mm both ways (no clamping to 1).
+        let c = vec![7.0f32; 57 * 57];
+        for v in resize_plane(&c, [57, 57], [8, 8]).into_iter().chain(resize_plane(&c, [57, 57], [200, 200])) {
+            assert!((v - 7.0).abs() < 1e-4, "{v}");
+        }
+        // Shrinking by an integer factor of a ramp keeps the mean.
+        let ramp: Vec<f32> = (0..64 * 64).map(|i| (i % 64) as f32 * 0.1).collect();
+        let small = resize_plane(&ramp, [64, 64], [16, 16]);
+        let (a, b) = (ramp.iter().sum::<f32>() / ramp.len() as f32, small.iter().sum::<f32>() / small.len() as f32);
+        assert!((a - b).abs() < 0.05, "{a} vs {b}");
+        // Growing a linear ramp interpolates it linearly inside.
+        let big = resize_plane(&[0.0, 2.0, 4.0, 6.0], [1, 4], [1, 8]);
+        assert!((big[3] - 2.5).abs() < 1e-5 && (big[4] - 3.5).abs() < 1e-5, "{big:?}");
+    }
+}
