@@ -28,9 +28,7 @@ use crate::scene::SceneDescription;
 
 pub const DATASET_FORMAT_VERSION: u32 = 1;
 
-/// Depth above which a pixel counts as in contact (mm). Well above the PNG's 1 um step and the
-/// ray caster's error, well below the 0.11 mm uncertainty of 3D-printed ground truth.
-pub const CONTACT_THRESHOLD_MM: f32 = 0.02;
+pub use sensor::CONTACT_THRESHOLD_MM;
 
 /// Per-sample depth statistics over the useful pixels.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -310,15 +310,6 @@ impl Renderer {
             };
             px.map(quantise)
         };
-        if s == 1 {
-            let flat = radiance.as_flattened();
-            let mut bytes = vec![0u8; flat.len()];
-            match &mut noise {
-                Some(noise) => noise.add_quantised(flat, &mut bytes),
-                None => bytes.iter_mut().zip(flat).for_each(|(b, &v)| *b = quantise(v)),
-            }
-            return RgbImage::from_raw(w, h, bytes).expect("grid size");
-        }
         let mut img = RgbImage::new(w, h);
         let gw = self.grid.width as usize;
         let norm = 1.0 / (s * s) as f32;
@@ -460,18 +451,24 @@ impl GaussianNoise {
             let n = (values.len() - done).min(NOISE_TABLE_LEN - self.pos);
             let normals = &self.table[self.pos..self.pos + n];
             for ((b, &v), &z) in out[done..done + n].iter_mut().zip(&values[done..done + n]).zip(normals) {
-                *b = quantise(v + z * (self.read_var + self.shot_gain * v.max(0.0)).sqrt());
+                *b = quantise(v + z * self.sigma(v));
             }
             self.pos = (self.pos + n) % NOISE_TABLE_LEN;
             done += n;
         }
     }
 
+    /// Standard deviation of the noise at grey level `v`: read noise plus shot noise.
+    #[inline(always)]
+    fn sigma(&self, v: f32) -> f32 {
+        (self.read_var + self.shot_gain * v.max(0.0)).sqrt()
+    }
+
     #[inline]
     fn add_to(&mut self, px: [f32; 3]) -> [f32; 3] {
         let out = std::array::from_fn(|c| {
             let z = self.table[(self.pos + c) % NOISE_TABLE_LEN];
-            px[c] + z * (self.read_var + self.shot_gain * px[c].max(0.0)).sqrt()
+            px[c] + z * self.sigma(px[c])
         });
         self.pos = (self.pos + 3) % NOISE_TABLE_LEN;
         out

@@ -3,8 +3,7 @@
 
 use serde::Serialize;
 
-/// Depth above which a true pixel counts as in contact (mm), as in the dataset's statistics.
-pub const CONTACT_THRESHOLD_MM: f32 = 0.02;
+pub use sensor::CONTACT_THRESHOLD_MM;
 
 /// The uncertainty of 3D-printed ground truth (mm), drawn on the violin plot as in the paper.
 pub const GROUND_TRUTH_UNCERTAINTY_MM: f64 = 0.11;

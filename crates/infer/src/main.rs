@@ -89,10 +89,10 @@ fn eval(bundle: PathBuf, data: PathBuf, split: String, out: PathBuf) -> Result<(
                     truth.size_px
                 );
             }
-            if !predictor.has_contact(&frame) {
+            let (pred, ran) = predictor.predict_gated(&frame).with_context(|| format!("{}", image_path.display()))?;
+            if !ran {
                 skipped += 1;
             }
-            let pred = predictor.predict(&frame).with_context(|| format!("{}", image_path.display()))?;
             errors.push(ImageErrors::of(id, name, &pred.depth_mm, &truth.depth_mm, &predictor.mask));
             if (k + 1) % 50 == 0 {
                 eprintln!("{name}: {}/{}", k + 1, chosen.len());

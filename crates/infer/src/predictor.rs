@@ -108,11 +108,16 @@ impl Predictor {
     /// Depth (mm) on the crop's grid, zero outside the useful disk. A frame with no contact
     /// (see [`has_contact`](Self::has_contact)) returns zeros without running the network.
     pub fn predict(&self, frame: &RgbImage) -> Result<DepthMap, InferError> {
+        Ok(self.predict_gated(frame)?.0)
+    }
+
+    /// Like [`predict`](Self::predict), also saying whether the network ran.
+    pub fn predict_gated(&self, frame: &RgbImage) -> Result<(DepthMap, bool), InferError> {
         self.check(frame)?;
         if !self.has_contact(frame) {
-            return Ok(DepthMap::zeros(self.file.sensor.crop_size_px));
+            return Ok((DepthMap::zeros(self.file.sensor.crop_size_px), false));
         }
-        Ok(self.predict_network(std::slice::from_ref(frame))?.remove(0))
+        Ok((self.predict_network(std::slice::from_ref(frame))?.remove(0), true))
     }
 
     /// The network's depth maps for a batch of frames (no contact gate).
