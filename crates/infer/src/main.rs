@@ -155,7 +155,9 @@ fn predict(
     }
     if let Some(path) = colour_out {
         let img = infer::colour::false_colour(&depth, &predictor.mask, predictor.file.sensor.max_depth_mm as f32);
-        img.save(&path).with_context(|| format!("{}: cannot write", path.display()))?;
+        let mut png = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut png, image::ImageFormat::Png).context("encoding the false-colour image")?;
+        sensor::io::write_atomic(&path, png.get_ref())?;
         println!("wrote {}", path.display());
     }
     if let Some(path) = ply {
