@@ -9,7 +9,7 @@ use dataset::generate::Generator;
 use dataset::{Kit, Renderer, SensorUnit, Skipping, Split};
 use model::{DenseDepth, DenseDepthConfig};
 use train::data::{DepthBatcher, DepthDataset};
-use train::training::{FitConfig, OnBadData, Start, fit, preset, validate};
+use train::training::{FitConfig, Schedule, Start, fit, preset, validate};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -25,8 +25,11 @@ pub struct Args {
     input: usize,
     #[arg(long, default_value_t = 4)]
     batch: usize,
+    /// Peak learning rate (Adam; linear warm-up, then a cosine down to 1 %).
     #[arg(long, default_value_t = 1e-3)]
     lr: f64,
+    #[arg(long, default_value_t = 50)]
+    warmup_steps: u64,
     /// Work folder (datasets are kept and reused; runs are redone).
     #[arg(long, default_value = "target/finetune-study")]
     work: PathBuf,
@@ -56,20 +59,20 @@ pub fn run(args: Args) -> Result<()> {
     let (a, b) = (&data[0], &data[1]);
     let model_config = DenseDepthConfig::new(preset(&args.preset)?);
     let cfg = |dir: &PathBuf, fraction: f64| FitConfig {
-        data: dir.clone(),
-        input_hw,
         epochs: args.epochs,
         batch: args.batch,
         lr: args.lr,
         seed: 7,
         checkpoint_every: 1_000_000,
-        on_bad_data: OnBadData::Stop,
-        max_bad_steps: 5,
-        freeze_encoder: false,
         train_fraction: fraction,
-        inject_nan_step: None,
+        net_range: [0.01, 1.0],
+        schedule: Schedule::Cosine,
+        warmup_steps: args.warmup_steps,
+        val_fraction: 0.1,
+        ..FitConfig::new(dir.clone(), input_hw)
     };
-    let b_test = DepthDataset::open(b, Some(Split::Test), input_hw)?;
+    let mut b_test = DepthDataset::open(b, Some(Split::Test), input_hw)?;
+    b_test.scale = cfg(b, 1.0).scale(b_test.sensor.max_depth_mm);
     let batcher = DepthBatcher { input_hw, mask: b_test.mask.clone() };
     let on_b = |net: &DenseDepth| -> Result<f64> { Ok(validate(net, &b_test, &batcher, args.batch, &device)?.0) };
     let run_dir = |name: &str| {

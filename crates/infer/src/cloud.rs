@@ -3,7 +3,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use sensor::{DepthMap, Sensor};
+use sensor::{DepthMap, PixelRay, Sensor};
 
 /// Points of the pressed surface, sensor frame, millimetres.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -15,10 +15,15 @@ impl PointCloud {
     /// The surface at `(R - depth)` along every useful pixel's ray; with `min_depth_mm`, only
     /// the pixels pressed deeper than it (the contact patch).
     pub fn from_depth(depth: &DepthMap, sensor: &Sensor, min_depth_mm: Option<f32>) -> Self {
-        let radius = sensor.radius_mm as f32;
-        let points_mm = sensor
-            .pixel_rays()
-            .into_iter()
+        Self::from_rays(depth, &sensor.pixel_rays(), sensor.radius_mm, min_depth_mm)
+    }
+
+    /// Like [`from_depth`](Self::from_depth) with the sensor's rays computed once beforehand
+    /// (what a frame loop should do: the rays cost more than the cloud).
+    pub fn from_rays(depth: &DepthMap, rays: &[PixelRay], radius_mm: f64, min_depth_mm: Option<f32>) -> Self {
+        let radius = radius_mm as f32;
+        let points_mm = rays
+            .iter()
             .filter_map(|ray| {
                 let d = depth.depth_mm[ray.index as usize];
                 if min_depth_mm.is_some_and(|t| d <= t) {

@@ -1,9 +1,12 @@
 //! Light inference from an exported bundle: depth maps, contact masks and point clouds from
 //! camera frames. Depends on the network and the bundle format only: no autodiff, no training.
 
+pub mod bench;
 pub mod cloud;
 pub mod colour;
 pub mod eval;
+pub mod icp;
+pub mod kdtree;
 pub mod predictor;
 
 pub use cloud::{PointCloud, write_ply};

@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use infer::eval::{CONTACT_THRESHOLD_MM, ImageErrors, SplitStats, violin_svg};
-use infer::{PointCloud, Predictor, write_ply};
+use infer::{Predictor, write_ply};
 
 #[derive(Parser)]
 #[command(name = "infer", version, about = "DenseTact depth, contact and point clouds from camera frames")]
@@ -50,6 +50,62 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Median milliseconds per frame (network alone, end to end, a frame without contact),
+    /// beside the bundle's recorded test error.
+    Bench {
+        #[arg(long)]
+        bundle: PathBuf,
+        /// A frame with contact (PNG crop); default: the bundle's reference image.
+        #[arg(long)]
+        image: Option<PathBuf>,
+        /// flex (CPU) or wgpu.
+        #[arg(long, default_value = "flex")]
+        device: String,
+        #[arg(long, default_value_t = 20)]
+        repeats: usize,
+    },
+}
+
+fn bench(bundle: PathBuf, image: Option<PathBuf>, device: String, repeats: usize) -> Result<()> {
+    let dev = model::backend::device(&device).map_err(anyhow::Error::msg)?;
+    let predictor = Predictor::load(&bundle, &dev)?;
+    let reference = match &predictor.reference {
+        Some(r) => {
+            let mut png = std::io::Cursor::new(Vec::new());
+            r.write_to(&mut png, image::ImageFormat::Png).context("encoding the reference image")?;
+            Some(png.into_inner())
+        }
+        None => None,
+    };
+    let frame = match &image {
+        Some(path) => std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?,
+        None => reference.clone().context("the bundle has no reference image: give a frame with --image")?,
+    };
+    let no_contact = reference.as_ref().unwrap_or(&frame);
+    let t = infer::bench::time_frames(&predictor, &frame, no_contact, repeats)
+        .with_context(|| format!("{}", image.as_deref().unwrap_or(bundle.as_path()).display()))?;
+    let f = &predictor.file;
+    let test =
+        infer::bench::recorded_test_l1_mm(&predictor).map_or("not recorded".to_string(), |v| format!("{v:.4} mm"));
+    println!(
+        "bundle {}: {} DenseNet (growth {}, blocks {:?}), input {}x{}, device {device}",
+        bundle.display(),
+        f.model.encoder.preset_name().unwrap_or("custom"),
+        f.model.encoder.growth_rate,
+        f.model.encoder.block_config,
+        f.input_height_px,
+        f.input_width_px
+    );
+    println!("median of {} frames:", t.repeats);
+    println!("  network only                      {:9.2} ms", t.network_ms);
+    println!("  end to end (decode, depth, cloud) {:9.2} ms", t.end_to_end_ms);
+    match reference {
+        Some(_) => println!("  frame without contact (gated)     {:9.2} ms", t.gated_no_contact_ms),
+        None => println!("  frame without contact             no reference image in the bundle: no gate"),
+    }
+    println!("test L1 (mean per image, useful pixels): {test}");
+    println!("paper: 18.17 ms per frame, DenseNet-161 at 640x480 on a GPU; test L1 0.281 mm");
+    Ok(())
 }
 
 fn eval(bundle: PathBuf, data: PathBuf, split: String, out: PathBuf) -> Result<()> {
@@ -161,7 +217,7 @@ fn predict(
         println!("wrote {}", path.display());
     }
     if let Some(path) = ply {
-        let cloud = PointCloud::from_depth(&depth, &predictor.file.sensor, Some(CONTACT_THRESHOLD_MM));
+        let cloud = predictor.point_cloud(&depth, CONTACT_THRESHOLD_MM);
         write_ply(&path, &cloud)?;
         println!("wrote {} ({} points)", path.display(), cloud.points_mm.len());
     }
@@ -174,6 +230,7 @@ fn main() -> ExitCode {
             predict(bundle, image, depth_out, colour_out, ply, always)
         }
         Command::Eval { bundle, data, split, out } => eval(bundle, data, split, out),
+        Command::Bench { bundle, image, device, repeats } => bench(bundle, image, device, repeats),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

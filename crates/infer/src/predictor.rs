@@ -44,6 +44,8 @@ pub struct Predictor {
     pub reference: Option<RgbImage>,
     /// Useful pixels of the crop (row-major).
     pub mask: Vec<bool>,
+    /// The useful pixels' rays, for point clouds.
+    pub rays: Vec<sensor::PixelRay>,
     pub gate: ContactGate,
 }
 
@@ -76,7 +78,16 @@ impl Predictor {
             None => None,
         };
         let mask = file.sensor.valid_mask();
-        Ok(Predictor { net: net.folded(), file, device: device.clone(), reference, mask, gate: ContactGate::default() })
+        let rays = file.sensor.pixel_rays();
+        Ok(Predictor {
+            net: net.folded(),
+            file,
+            device: device.clone(),
+            reference,
+            mask,
+            rays,
+            gate: ContactGate::default(),
+        })
     }
 
     fn check(&self, frame: &RgbImage) -> Result<(), InferError> {
@@ -122,11 +133,17 @@ impl Predictor {
 
     /// The network's depth maps for a batch of frames (no contact gate).
     pub fn predict_network(&self, frames: &[RgbImage]) -> Result<Vec<DepthMap>, InferError> {
-        for f in frames {
-            self.check(f)?;
-        }
         if frames.is_empty() {
             return Ok(Vec::new());
+        }
+        let input = self.input(frames)?;
+        Ok(self.depth_maps(self.net.forward(input)))
+    }
+
+    /// The network's input for a batch of frames: resized, RGB, values / 255.
+    pub fn input(&self, frames: &[RgbImage]) -> Result<Tensor<4>, InferError> {
+        for f in frames {
+            self.check(f)?;
         }
         let (h, w) = (self.file.input_height_px, self.file.input_width_px);
         let mut input = vec![0f32; frames.len() * 3 * h * w];
@@ -139,14 +156,22 @@ impl Predictor {
                 }
             }
         }
-        let x = Tensor::<4>::from_data(TensorData::new(input, [frames.len(), 3, h, w]), &self.device);
-        let out = self.net.forward(x);
+        Ok(Tensor::<4>::from_data(TensorData::new(input, [frames.len(), 3, h, w]), &self.device))
+    }
+
+    /// The network alone: input tensor to output tensor (network units, half resolution).
+    pub fn forward(&self, input: Tensor<4>) -> Tensor<4> {
+        self.net.forward(input)
+    }
+
+    /// Network output to depth maps (mm) on the crop's grid, zero outside the useful disk.
+    pub fn depth_maps(&self, out: Tensor<4>) -> Vec<DepthMap> {
         let [_, _, oh, ow] = out.dims();
         let values: Vec<f32> = out.into_data().try_to_vec::<f32>().expect("f32 output");
         let scale = self.file.depth_scale;
         let crop = self.file.sensor.crop_size_px;
         let max = self.file.sensor.max_depth_mm as f32;
-        Ok(values
+        values
             .chunks(oh * ow)
             .map(|plane| {
                 let mm: Vec<f32> = plane.iter().map(|&v| scale.to_mm(v)).collect();
@@ -156,7 +181,12 @@ impl Predictor {
                     full.iter().zip(&self.mask).map(|(&d, &m)| if m { d.clamp(0.0, max) } else { 0.0 }).collect();
                 DepthMap { size_px: crop, depth_mm }
             })
-            .collect())
+            .collect()
+    }
+
+    /// The contact patch (pixels deeper than `min_depth_mm`) as points, sensor frame, mm.
+    pub fn point_cloud(&self, depth: &DepthMap, min_depth_mm: f32) -> crate::PointCloud {
+        crate::PointCloud::from_rays(depth, &self.rays, self.file.sensor.radius_mm, Some(min_depth_mm))
     }
 
     /// Pixels pressed deeper than `threshold_mm`.

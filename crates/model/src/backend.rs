@@ -18,6 +18,20 @@ pub fn wgpu_device() -> Device {
     Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)
 }
 
+/// A device by its command-line name: `flex` (or `cpu`), and `wgpu` in builds with the `wgpu`
+/// feature.
+pub fn device(name: &str) -> Result<Device, String> {
+    match name {
+        "flex" | "cpu" => Ok(default_device()),
+        #[cfg(feature = "wgpu")]
+        "wgpu" => Ok(wgpu_device()),
+        other => Err(format!(
+            "unknown or unavailable device {other:?}: flex{}",
+            if cfg!(feature = "wgpu") { ", wgpu" } else { " (wgpu needs a build with --features wgpu)" }
+        )),
+    }
+}
+
 /// burn-ndarray, deprecated in Burn 0.22 and about 12x slower than flex here; built only with
 /// the `ndarray` feature, for comparisons.
 #[cfg(feature = "ndarray")]

@@ -56,6 +56,11 @@ impl DenseNetConfig {
         })
     }
 
+    /// The preset this configuration is, if any.
+    pub fn preset_name(&self) -> Option<&'static str> {
+        Self::PRESETS.into_iter().find(|name| Self::preset(name).as_ref() == Some(self))
+    }
+
     pub const PRESETS: [&'static str; 6] =
         ["compact", "tiny", "densenet121", "densenet161", "densenet169", "densenet201"];
 

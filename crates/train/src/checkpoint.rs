@@ -33,21 +33,45 @@ pub struct RunState {
     pub epoch_loss_count: u64,
 }
 
+impl RunState {
+    /// The epoch with the lowest validation L1 so far.
+    pub fn best(&self) -> Option<&EpochMetrics> {
+        self.history.iter().filter(|m| m.val_l1_mm.is_finite()).min_by(|a, b| a.val_l1_mm.total_cmp(&b.val_l1_mm))
+    }
+}
+
 pub fn dir(run: &Path) -> PathBuf {
     run.join("checkpoint")
 }
 
+/// The model of the best epoch on the held-out validation samples, if the run keeps one.
+pub fn best(run: &Path) -> Option<PathBuf> {
+    Some(run.join("best")).filter(|d| d.join("state.json").is_file() && d.join("model.bpk").is_file())
+}
+
 /// Writes a checkpoint and swaps it in.
 pub fn save(run: &Path, net: &DenseDepth, optim: &ModuleOptimizer, state: &RunState) -> Result<()> {
-    let (final_dir, new, old) = (dir(run), run.join("checkpoint.new"), run.join("checkpoint.old"));
+    let optim_bytes = optim.into_bytes().context("serialising the optimiser")?;
+    swap_in(run, "checkpoint", net, Some(&optim_bytes), state)
+}
+
+/// Writes the best epoch's model (no optimiser: it is for export, not for resuming).
+pub fn save_best(run: &Path, net: &DenseDepth, state: &RunState) -> Result<()> {
+    swap_in(run, "best", net, None, state)
+}
+
+fn swap_in(run: &Path, name: &str, net: &DenseDepth, optim: Option<&[u8]>, state: &RunState) -> Result<()> {
+    let final_dir = run.join(name);
+    let (new, old) = (run.join(format!("{name}.new")), run.join(format!("{name}.old")));
     let _ = std::fs::remove_dir_all(&new);
     std::fs::create_dir_all(&new).with_context(|| format!("{}: cannot create", new.display()))?;
     // Burn keeps BatchNorm's running statistics per thread and folds them in lazily; a record
     // taken straight from the training module would lag a step. `valid()` folds them first.
     let model_bytes = net.valid().into_record().into_bytes().context("serialising the model")?;
     sensor::io::write_atomic(&new.join("model.bpk"), &model_bytes)?;
-    let optim_bytes = optim.into_bytes().context("serialising the optimiser")?;
-    sensor::io::write_atomic(&new.join("optim.bpk"), &optim_bytes)?;
+    if let Some(bytes) = optim {
+        sensor::io::write_atomic(&new.join("optim.bpk"), bytes)?;
+    }
     dataset::format::write_json(&new.join("state.json"), state)?;
     if final_dir.exists() {
         let _ = std::fs::remove_dir_all(&old);
@@ -68,21 +92,26 @@ pub fn read_state(ckpt: &Path) -> Result<RunState> {
     Ok(dataset::format::read_json(&ckpt.join("state.json"))?)
 }
 
-/// Restores the network (on `device`) and the optimiser from a checkpoint.
-pub fn restore(ckpt: &Path, state: &RunState, device: &Device) -> Result<(DenseDepth, ModuleOptimizer)> {
-    let read = |name: &str| -> Result<Bytes> {
-        let path = ckpt.join(name);
-        Ok(Bytes::from_bytes_vec(std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?))
-    };
-    let record = ModuleRecord::from_bytes(read("model.bpk")?)
-        .with_context(|| format!("{}: not a model record", ckpt.join("model.bpk").display()))?;
-    let net = state
-        .model
+fn read(dir: &Path, name: &str) -> Result<Bytes> {
+    let path = dir.join(name);
+    Ok(Bytes::from_bytes_vec(std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?))
+}
+
+/// Restores a saved network on `device`.
+pub fn restore_model(dir: &Path, model: &DenseDepthConfig, device: &Device) -> Result<DenseDepth> {
+    let record = ModuleRecord::from_bytes(read(dir, "model.bpk")?)
+        .with_context(|| format!("{}: not a model record", dir.join("model.bpk").display()))?;
+    model
         .init(device)
         .try_load_record(record)
-        .with_context(|| format!("{}: does not fit the run's model", ckpt.join("model.bpk").display()))?;
+        .with_context(|| format!("{}: does not fit the run's model", dir.join("model.bpk").display()))
+}
+
+/// Restores the network (on `device`) and the optimiser from a checkpoint.
+pub fn restore(ckpt: &Path, state: &RunState, device: &Device) -> Result<(DenseDepth, ModuleOptimizer)> {
+    let net = restore_model(ckpt, &state.model, device)?;
     let optim = crate::training::optimizer()
-        .from_bytes(read("optim.bpk")?)
+        .from_bytes(read(ckpt, "optim.bpk")?)
         .with_context(|| format!("{}: not an optimiser record", ckpt.join("optim.bpk").display()))?;
     Ok((net, optim))
 }

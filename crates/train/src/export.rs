@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use burn::module::Module;
 use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, INPUT_ENCODING, write_bundle};
 use model::{DenseDepth, DepthScale};
 use sensor::Sensor;
@@ -10,25 +11,34 @@ use sensor::Sensor;
 use crate::checkpoint::{self, RunState};
 use crate::data::DepthDataset;
 
-/// Writes the bundle of a run's latest checkpoint.
+/// Writes the bundle of a run: its best epoch on the held-out validation samples if it keeps
+/// one, else its latest checkpoint.
 pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device) -> Result<()> {
-    let ckpt =
+    let latest =
         checkpoint::latest(run).with_context(|| format!("{}: no checkpoint in this run folder", run.display()))?;
-    let state = checkpoint::read_state(&ckpt)?;
-    let (net, _) = checkpoint::restore(&ckpt, &state, device)?;
+    let state = checkpoint::read_state(&latest)?;
+    let weights = checkpoint::best(run).unwrap_or(latest);
+    let net = checkpoint::restore_model(&weights, &state.model, device)?;
     export_net(&net, &state, out)
 }
 
 /// Writes the bundle of a trained network and its run's state.
+/// The bundle records the network's error on the dataset's test split, so that every speed
+/// figure taken from it can stand beside an error figure.
 pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path) -> Result<()> {
     let data = DepthDataset::open(&state.config.data, None, state.config.input_hw)?;
+    let mut test = DepthDataset::open(&state.config.data, Some(dataset::Split::Test), state.config.input_hw)?;
+    test.scale = state.config.scale(test.sensor.max_depth_mm);
+    let batcher = crate::data::DepthBatcher { input_hw: state.config.input_hw, mask: test.mask.clone() };
+    let device = net.devices().into_iter().next().context("the network has no device")?;
+    let (test_l1_mm, _) = crate::training::validate(net, &test, &batcher, state.config.batch, &device)?;
     let file = BundleFile {
         format_version: BUNDLE_FORMAT_VERSION,
         model: state.model.clone(),
         input_height_px: state.config.input_hw[0],
         input_width_px: state.config.input_hw[1],
         input_encoding: INPUT_ENCODING.into(),
-        depth_scale: data.scale,
+        depth_scale: state.config.scale(data.sensor.max_depth_mm),
         sensor: data.sensor.clone(),
         reference_image: None,
         training: serde_json::json!({
@@ -41,6 +51,9 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path) -> Result<()> 
             "skipped_steps": state.skipped_steps,
             "bad_samples": state.bad_samples,
             "history": state.history,
+            "test_l1_mm": if test_l1_mm.is_finite() { Some(test_l1_mm) } else { None },
+            "test_images": test.records.len(),
+            "selected_epoch": state.best().filter(|_| state.config.val_fraction > 0.0).map_or(state.epoch, |b| b.epoch),
         }),
     };
     write_bundle(out, net, &file, data.reference_png().as_deref())?;

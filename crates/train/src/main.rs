@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
 use clap::{Parser, Subcommand};
 use train::data::DepthDataset;
-use train::training::{FitConfig, OnBadData, Start, fit, preset};
+use train::training::{FitConfig, OnBadData, Schedule, Start, fit, preset};
 
 #[derive(Parser)]
 #[command(name = "train", version, about = "Train DenseDepth for DenseTact sensors")]
@@ -76,6 +76,16 @@ struct Common {
     /// Train on this fraction of the training split (a seeded subset).
     #[arg(long, default_value_t = 1.0)]
     train_fraction: f64,
+    /// Learning-rate schedule after the warm-up: constant or cosine (down to 1 % at the end).
+    #[arg(long, value_enum, default_value_t = Schedule::Constant)]
+    schedule: Schedule,
+    /// Steps over which the learning rate ramps up from zero.
+    #[arg(long, default_value_t = 0)]
+    warmup_steps: u64,
+    /// Fraction of the training samples held out to validate each epoch and keep the best
+    /// epoch's model (0: validate on the test split, keep the last epoch).
+    #[arg(long, default_value_t = 0.1)]
+    val_fraction: f64,
     /// Test hook: the loss of this step is made non-finite.
     #[arg(long, hide = true)]
     inject_nan_step: Option<u64>,
@@ -91,6 +101,10 @@ struct FitArgs {
     /// Network input, HxW (multiples of 32); the square crop is resized to it.
     #[arg(long, default_value = "256x256", value_parser = parse_hw)]
     input: [usize; 2],
+    /// Depth in network units: `paper` (0..max depth -> 10..1000, as the paper trained) or
+    /// `unit` (0.01..1, reached in far fewer steps when training from scratch).
+    #[arg(long, value_enum, default_value_t = DepthUnits::Paper)]
+    depth_units: DepthUnits,
     /// A torchvision DenseNet checkpoint (ImageNet) to start the encoder from.
     #[arg(long)]
     encoder_weights: Option<PathBuf>,
@@ -114,6 +128,21 @@ struct FinetuneArgs {
     bundle: Option<PathBuf>,
 }
 
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum DepthUnits {
+    Paper,
+    Unit,
+}
+
+impl DepthUnits {
+    fn net_range(self) -> [f32; 2] {
+        match self {
+            DepthUnits::Paper => [10.0, 1000.0],
+            DepthUnits::Unit => [0.01, 1.0],
+        }
+    }
+}
+
 fn parse_hw(s: &str) -> Result<[usize; 2], String> {
     let (h, w) = s.split_once('x').ok_or_else(|| format!("expected HxW, got {s:?}"))?;
     let parse = |v: &str| v.trim().parse::<usize>().map_err(|e| format!("{v:?}: {e}"));
@@ -125,24 +154,20 @@ fn parse_hw(s: &str) -> Result<[usize; 2], String> {
 }
 
 fn device(name: &str) -> Result<Device> {
-    match name {
-        "flex" | "cpu" => Ok(model::backend::default_device()),
-        #[cfg(feature = "wgpu")]
-        "wgpu" => Ok(model::backend::wgpu_device()),
-        other => bail!(
-            "unknown or unavailable device {other:?}: flex{}",
-            if cfg!(feature = "wgpu") { ", wgpu" } else { " (build with --features train/wgpu for wgpu)" }
-        ),
-    }
+    model::backend::device(name).map_err(anyhow::Error::msg)
 }
 
-fn config(c: &Common, input_hw: [usize; 2], freeze_encoder: bool) -> Result<FitConfig> {
+fn config(c: &Common, input_hw: [usize; 2], net_range: [f32; 2], freeze_encoder: bool) -> Result<FitConfig> {
     if c.batch == 0 || c.epochs == 0 || c.lr.is_nan() || c.lr <= 0.0 || c.checkpoint_every == 0 {
         bail!("--batch, --epochs, --lr and --checkpoint-every must be positive");
     }
     Ok(FitConfig {
         data: c.data.clone(),
         input_hw,
+        net_range,
+        schedule: c.schedule,
+        warmup_steps: c.warmup_steps,
+        val_fraction: c.val_fraction,
         epochs: c.epochs,
         batch: c.batch,
         lr: c.lr,
@@ -158,7 +183,7 @@ fn config(c: &Common, input_hw: [usize; 2], freeze_encoder: bool) -> Result<FitC
 
 fn run_fit(args: FitArgs) -> Result<()> {
     let dev = device(&args.common.device)?;
-    let cfg = config(&args.common, args.input, false)?;
+    let cfg = config(&args.common, args.input, args.depth_units.net_range(), false)?;
     let model_config = model::DenseDepthConfig::new(preset(&args.preset)?);
     let weights = match &args.encoder_weights {
         Some(path) => {
@@ -185,7 +210,9 @@ fn run_finetune(args: FinetuneArgs) -> Result<()> {
     let dev = device(&args.common.device)?;
     let (net, file) = model::bundle::load_bundle(&args.from, &dev)?;
     let input = [file.input_height_px, file.input_width_px];
-    let cfg = config(&args.common, input, args.freeze_encoder)?;
+    // The bundle's depth units: the network's output layer was trained to them.
+    let net_range = [file.depth_scale.net_min, file.depth_scale.net_max];
+    let cfg = config(&args.common, input, net_range, args.freeze_encoder)?;
     let data = DepthDataset::open(&cfg.data, None, input)?;
     if (data.sensor.radius_mm - file.sensor.radius_mm).abs() > 1e-9 {
         bail!("{}: the dataset's sensor radius differs from the bundle's", cfg.data.display());

@@ -12,7 +12,7 @@ use burn::tensor::{Device, Tensor};
 use dataset::Split;
 use dataset::progress::Progress;
 use dataset::rng::SplitMix64;
-use model::{DenseDepth, DenseDepthConfig, DepthLossConfig};
+use model::{DenseDepth, DenseDepthConfig, DepthLossConfig, DepthScale};
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{self, RunState};
@@ -49,10 +49,84 @@ pub struct FitConfig {
     /// Test hook: make the loss of this global step non-finite.
     #[serde(default)]
     pub inject_nan_step: Option<u64>,
+    /// Network units of zero and maximum depth: the paper's 10..1000, or 0.01..1, which a
+    /// network trained from scratch on a short budget reaches in far fewer steps.
+    #[serde(default = "paper_range")]
+    pub net_range: [f32; 2],
+    /// Learning-rate schedule after the warm-up.
+    #[serde(default)]
+    pub schedule: Schedule,
+    /// Steps over which the learning rate ramps up linearly from zero.
+    #[serde(default)]
+    pub warmup_steps: u64,
+    /// Fraction of the (used) training split held out, seeded, to validate each epoch and pick
+    /// the best epoch; the test split is never seen during training.
+    #[serde(default)]
+    pub val_fraction: f64,
 }
 
 fn one() -> f64 {
     1.0
+}
+
+fn paper_range() -> [f32; 2] {
+    [10.0, 1000.0]
+}
+
+/// How the learning rate changes over a run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Schedule {
+    /// The given rate throughout.
+    #[default]
+    Constant,
+    /// Half a cosine from the given rate down to 1 % of it at the last step.
+    Cosine,
+}
+
+impl FitConfig {
+    /// A run with the CLI's defaults.
+    pub fn new(data: PathBuf, input_hw: [usize; 2]) -> Self {
+        FitConfig {
+            data,
+            input_hw,
+            epochs: 10,
+            batch: 4,
+            lr: 1e-4,
+            seed: 0,
+            checkpoint_every: 50,
+            on_bad_data: OnBadData::Stop,
+            max_bad_steps: 5,
+            freeze_encoder: false,
+            train_fraction: 1.0,
+            inject_nan_step: None,
+            net_range: paper_range(),
+            schedule: Schedule::Constant,
+            warmup_steps: 0,
+            val_fraction: 0.0,
+        }
+    }
+
+    /// The depth scale of this run for a sensor whose depth is clipped at `max_depth_mm`.
+    pub fn scale(&self, max_depth_mm: f64) -> DepthScale {
+        DepthScale { max_depth_mm: max_depth_mm as f32, net_min: self.net_range[0], net_max: self.net_range[1] }
+    }
+
+    /// The learning rate of (1-based) step `step` of `total` steps.
+    pub fn learning_rate(&self, step: u64, total: u64) -> f64 {
+        if step <= self.warmup_steps {
+            return self.lr * step as f64 / (self.warmup_steps + 1) as f64;
+        }
+        match self.schedule {
+            Schedule::Constant => self.lr,
+            Schedule::Cosine => {
+                let span = total.saturating_sub(self.warmup_steps).max(1) as f64;
+                let t = ((step - self.warmup_steps) as f64 / span).min(1.0);
+                let floor = 0.01;
+                self.lr * (floor + (1.0 - floor) * 0.5 * (1.0 + (std::f64::consts::PI * t).cos()))
+            }
+        }
+    }
 }
 
 /// One epoch's numbers (also a row of `metrics.csv`).
@@ -99,10 +173,28 @@ pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, re
         ids.sort_unstable();
         train.records = ids.into_iter().map(|i| train.records[i].clone()).collect();
     }
-    let val = DepthDataset::open(&config.data, Some(Split::Test), config.input_hw)?;
-    if train.records.is_empty() {
-        bail!("{}: no training samples", config.data.display());
+    if !(0.0..1.0).contains(&config.val_fraction) {
+        bail!("the validation fraction must be in [0, 1), got {}", config.val_fraction);
     }
+    let mut val = DepthDataset::open(&config.data, Some(Split::Test), config.input_hw)?;
+    if config.val_fraction > 0.0 {
+        // Hold out a seeded part of the training samples; the test split stays unseen.
+        let n = train.records.len();
+        let held = ((n as f64 * config.val_fraction).round() as usize).clamp(1, n.saturating_sub(1).max(1));
+        if n < 2 {
+            bail!("{}: a validation hold-out needs at least two training samples", config.data.display());
+        }
+        let order = permutation(n, config.seed ^ 0x7a1d, 0);
+        let mut is_val = vec![false; n];
+        order.iter().take(held).for_each(|&i| is_val[i] = true);
+        let records = std::mem::take(&mut train.records);
+        let (v, t): (Vec<_>, Vec<_>) = records.into_iter().enumerate().partition(|(i, _)| is_val[*i]);
+        val.records = v.into_iter().map(|(_, r)| r).collect();
+        train.records = t.into_iter().map(|(_, r)| r).collect();
+    }
+    let scale = config.scale(train.sensor.max_depth_mm);
+    train.scale = scale;
+    val.scale = scale;
     let (mut net, mut optim, mut state) = match checkpoint::latest(run_dir) {
         Some(ckpt) if resume => {
             let state = checkpoint::read_state(&ckpt)?;
@@ -146,7 +238,7 @@ pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, re
     if config.freeze_encoder {
         net.encoder = net.encoder.no_grad();
     }
-    let loss_config = DepthLossConfig::new();
+    let loss_config = DepthLossConfig::new().with_dynamic_range(scale.range() as f64);
     let batcher = DepthBatcher { input_hw: config.input_hw, mask: train.mask.clone() };
     let n_batches = train.records.len().div_ceil(config.batch);
     let mut bad_run = 0u64;
@@ -186,7 +278,8 @@ pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, re
                 }
                 if value.is_finite() {
                     let grads = GradientsParams::from_grads(loss.backward(), &net);
-                    net = optim.step(config.lr, net, grads);
+                    let lr = config.learning_rate(state.global_step, (n_batches * config.epochs) as u64);
+                    net = optim.step(lr, net, grads);
                     state.epoch_loss_sum += value;
                     state.epoch_loss_count += 1;
                     bad_run = 0;
@@ -226,15 +319,26 @@ pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, re
             "epoch {}: train loss {:.4}, validation L1 {:.4} mm (loss {:.4}), {:.0} s",
             metrics.epoch, metrics.train_loss, metrics.val_l1_mm, metrics.val_loss, metrics.seconds
         );
+        let improved = config.val_fraction > 0.0
+            && state.best().is_none_or(|b| metrics.val_l1_mm < b.val_l1_mm)
+            && metrics.val_l1_mm.is_finite();
         state.history.push(metrics);
         state.epoch += 1;
         state.batch = 0;
         state.epoch_loss_sum = 0.0;
         state.epoch_loss_count = 0;
+        if improved {
+            // Written before the checkpoint: a kill in between re-runs the epoch and rewrites it.
+            checkpoint::save_best(run_dir, &net, &state)?;
+        }
         checkpoint::save(run_dir, &net, &optim, &state)?;
         write_metrics(run_dir, &state.history)?;
     }
-    Ok(Fitted { net: net.valid(), state })
+    let net = match checkpoint::best(run_dir) {
+        Some(best) => checkpoint::restore_model(&best, &state.model, device)?,
+        None => net.valid(),
+    };
+    Ok(Fitted { net, state })
 }
 
 /// Mean per-image L1 (mm, useful pixels) and mean loss over a split, in eval mode.
@@ -248,7 +352,7 @@ pub fn validate(
     if data.records.is_empty() {
         return Ok((f64::NAN, f64::NAN));
     }
-    let loss_config = DepthLossConfig::new();
+    let loss_config = DepthLossConfig::new().with_dynamic_range(data.scale.range() as f64);
     let useful: f32 = batcher.mask.iter().sum::<f32>().max(1.0);
     let (mut l1_sum, mut loss_sum, mut images, mut batches) = (0f64, 0f64, 0usize, 0usize);
     let ids: Vec<usize> = (0..data.records.len()).collect();

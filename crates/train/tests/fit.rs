@@ -33,18 +33,13 @@ fn tiny_dataset(dir: &Path) {
 
 fn config(data: &Path, epochs: usize) -> FitConfig {
     FitConfig {
-        data: data.into(),
-        input_hw: [64, 64],
         epochs,
         batch: 2,
         lr: 3e-3,
         seed: 5,
         checkpoint_every: 3,
-        on_bad_data: OnBadData::Stop,
         max_bad_steps: 3,
-        freeze_encoder: false,
-        train_fraction: 1.0,
-        inject_nan_step: None,
+        ..FitConfig::new(data.into(), [64, 64])
     }
 }
 
