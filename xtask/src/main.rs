@@ -1,10 +1,11 @@
-//! Project automation. `cargo xtask bench raycast` measures the ray caster against Open3D's
-//! Embree-based RaycastingScene on the same rays, and the generator's throughput.
+//! Project automation: `cargo xtask quickstart` (the README's main command) and the benchmarks
+//! (`cargo xtask bench ...`).
 
 mod bench_finetune;
 mod bench_model;
 mod bench_raycast;
 mod bench_render;
+mod quickstart;
 mod timing;
 
 use std::process::ExitCode;
@@ -25,6 +26,8 @@ enum Command {
         #[command(subcommand)]
         what: Bench,
     },
+    /// The whole pipeline on the embedded kit: dataset, training, bundle, evaluation, examples.
+    Quickstart(quickstart::Args),
 }
 
 #[derive(Subcommand)]
@@ -46,6 +49,7 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Model(args) } => bench_model::run(args),
         Command::Bench { what: Bench::Render(args) } => bench_render::run(args),
         Command::Bench { what: Bench::Finetune(args) } => bench_finetune::run(args),
+        Command::Quickstart(args) => quickstart::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

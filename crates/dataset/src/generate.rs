@@ -58,6 +58,29 @@ pub struct Generator<'a> {
     pub renderer: Option<&'a Renderer>,
 }
 
+/// Generates (or resumes) a dataset of `kit`'s scenes with the images of simulated unit
+/// `unit_seed` (radius `radius_mm`), whose true geometry becomes the dataset's sensor.
+pub fn generate_with_unit(
+    out: &Path,
+    kit: &Kit,
+    unit_seed: u64,
+    radius_mm: f64,
+    params: GeneratorParams,
+) -> Result<RunReport> {
+    let unit = SensorUnit::from_seed(unit_seed, radius_mm);
+    let renderer = Renderer::for_crop(&unit);
+    let params = GeneratorParams { unit: Some(unit_seed), ..params };
+    Generator {
+        out: out.to_path_buf(),
+        sensor: &unit.sensor,
+        kit,
+        params,
+        skipping: Skipping::On,
+        renderer: Some(&renderer),
+    }
+    .run()
+}
+
 /// What a finished run reports.
 pub struct RunReport {
     pub manifest: Manifest,

@@ -1,7 +1,13 @@
 //! Evaluation as in the paper: per-image errors in millimetres over useful pixels (and over
 //! contact pixels), beside the zero predictor's, summarised per split and drawn as violins.
 
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use anyhow::{Context, Result};
 use serde::Serialize;
+
+use crate::Predictor;
 
 pub use sensor::CONTACT_THRESHOLD_MM;
 
@@ -230,6 +236,75 @@ pub fn violin_svg(groups: &[(&str, Vec<f64>)]) -> String {
         yu - 5.0
     );
     svg
+}
+
+/// Evaluates `predictor` on the named splits of a dataset folder (with images), printing one
+/// line per split, and writes `out/stats.json` (keyed by split), `errors.csv` and `violin.svg`.
+pub fn evaluate_dataset(
+    predictor: &Predictor,
+    data: &Path,
+    splits: &[&str],
+    out: &Path,
+) -> Result<BTreeMap<String, SplitStats>> {
+    let manifest_path = data.join("manifest.json");
+    let text = std::fs::read_to_string(&manifest_path).with_context(|| format!("{}", manifest_path.display()))?;
+    let manifest: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", manifest_path.display()))?;
+    let samples = manifest["samples"].as_array().with_context(|| format!("{}: no samples", manifest_path.display()))?;
+    let crop = predictor.file.sensor.crop_size_px;
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let mut stats = BTreeMap::new();
+    let mut rows = Vec::new();
+    let mut groups = Vec::new();
+    for &name in splits {
+        let (mut errors, mut skipped) = (Vec::new(), 0);
+        let chosen: Vec<&serde_json::Value> = samples.iter().filter(|s| s["split"] == name).collect();
+        for (k, s) in chosen.iter().enumerate() {
+            let id = s["id"].as_u64().unwrap_or(0) as u32;
+            let image_rel = s["image"].as_str().with_context(|| format!("sample {id} has no image"))?;
+            let image_path = data.join(image_rel);
+            let frame = image::open(&image_path)
+                .with_context(|| format!("{}: not a readable image", image_path.display()))?
+                .to_rgb8();
+            let depth_path = data.join(s["depth"].as_str().unwrap_or_default());
+            let truth = sensor::DepthMap::load_png_um(&depth_path)?;
+            if truth.size_px != crop {
+                anyhow::bail!(
+                    "{}: depth map is {}x{0}, the bundle's crop is {crop}",
+                    depth_path.display(),
+                    truth.size_px
+                );
+            }
+            let (pred, ran) = predictor.predict_gated(&frame).with_context(|| format!("{}", image_path.display()))?;
+            if !ran {
+                skipped += 1;
+            }
+            errors.push(ImageErrors::of(id, name, &pred.depth_mm, &truth.depth_mm, &predictor.mask));
+            if (k + 1) % 50 == 0 {
+                eprintln!("{name}: {}/{}", k + 1, chosen.len());
+            }
+        }
+        let s = SplitStats::of(&errors, skipped);
+        println!(
+            "{name:5}: {} images, L1 {:.4} mm (zeros {:.4}), contact L1 {:.4} mm (zeros {:.4}), L2 {:.5} mm^2; {skipped} frames without contact",
+            s.l1_mm.n, s.l1_mm.mean, s.zero_l1_mm.mean, s.contact_l1_mm.mean, s.zero_contact_l1_mm.mean, s.l2_mm.mean
+        );
+        groups.push((name, errors.iter().map(|e| e.l1_mm).collect::<Vec<_>>()));
+        stats.insert(name.to_string(), s);
+        rows.extend(errors);
+    }
+    sensor::io::write_atomic(&out.join("stats.json"), serde_json::to_string_pretty(&stats)?.as_bytes())?;
+    let mut csv = String::from("id,split,l1_mm,l2_mm,contact_l1_mm,zero_l1_mm,zero_contact_l1_mm,contact_pixels\n");
+    for e in &rows {
+        csv += &format!(
+            "{},{},{},{},{},{},{},{}\n",
+            e.id, e.split, e.l1_mm, e.l2_mm, e.contact_l1_mm, e.zero_l1_mm, e.zero_contact_l1_mm, e.contact_pixels
+        );
+    }
+    sensor::io::write_atomic(&out.join("errors.csv"), csv.as_bytes())?;
+    let groups: Vec<(&str, Vec<f64>)> = groups.into_iter().collect();
+    sensor::io::write_atomic(&out.join("violin.svg"), violin_svg(&groups).as_bytes())?;
+    Ok(stats)
 }
 
 #[cfg(test)]

@@ -6,29 +6,18 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use burn::tensor::{Distribution, Tensor};
+use dataset::Kit;
 use dataset::format::GeneratorParams;
-use dataset::generate::Generator;
-use dataset::{Kit, Renderer, SensorUnit, Skipping};
+use dataset::generate::generate_with_unit;
 use train::training::{FitConfig, OnBadData, Start, fit};
 
 const BIN: &str = env!("CARGO_BIN_EXE_train");
 
 /// 24 samples of simulated unit 3, a quarter of them test samples.
 fn tiny_dataset(dir: &Path) {
-    let unit = SensorUnit::from_seed(3, 25.0);
-    let renderer = Renderer::for_crop(&unit);
     let kit = Kit::procedural(25.0);
-    let params = GeneratorParams { unit: Some(3), test_fraction: 0.25, ..GeneratorParams::new(2, 24, &kit.source) };
-    Generator {
-        out: dir.into(),
-        sensor: &unit.sensor,
-        kit: &kit,
-        params,
-        skipping: Skipping::On,
-        renderer: Some(&renderer),
-    }
-    .run()
-    .unwrap();
+    let params = GeneratorParams { test_fraction: 0.25, ..GeneratorParams::new(2, 24, &kit.source) };
+    generate_with_unit(dir, &kit, 3, 25.0, params).unwrap();
 }
 
 fn config(data: &Path, epochs: usize) -> FitConfig {

@@ -1,0 +1,306 @@
+//! `cargo xtask quickstart`: the whole pipeline on the embedded kit, on the CPU, in one folder.
+//!
+//! Generate a dataset with a simulated unit's images, train the compact preset, export the
+//! bundle, evaluate both splits, write example triplets and a point cloud, print a summary.
+//! Every stage resumes: run the same command again after an interruption.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail, ensure};
+use dataset::format::{GeneratorParams, Manifest};
+use dataset::generate::{generate_with_unit, report_lines};
+use dataset::{Kit, Renderer, SensorUnit, Split};
+use infer::eval::{CONTACT_THRESHOLD_MM, SplitStats};
+use infer::{Predictor, write_ply};
+use model::DenseDepthConfig;
+use train::training::{FitConfig, Schedule, Start, fit, preset};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Output folder (dataset, run, bundle, evaluation, examples).
+    #[arg(long, default_value = "out/quickstart")]
+    out: PathBuf,
+    /// Tiny sizes (CI): 16 samples, the tiny preset at 64x64, one epoch.
+    #[arg(long)]
+    smoke: bool,
+    /// Samples to generate (default 1000; smoke 16).
+    #[arg(long)]
+    samples: Option<u32>,
+    /// Training epochs (default 14; smoke 1).
+    #[arg(long)]
+    epochs: Option<usize>,
+    /// The simulated sensor unit.
+    #[arg(long, default_value_t = 7)]
+    unit: u64,
+}
+
+/// What a run is made of; the smoke run shrinks every size.
+struct Plan {
+    samples: u32,
+    epochs: usize,
+    preset: &'static str,
+    input: usize,
+    batch: usize,
+    examples: usize,
+}
+
+/// The paper's test error (mean per-image L1, useful pixels, mm).
+const PAPER_TEST_L1_MM: f64 = 0.281;
+
+pub fn run(args: Args) -> Result<()> {
+    let started = Instant::now();
+    let plan = if args.smoke {
+        Plan { samples: 16, epochs: 1, preset: "tiny", input: 64, batch: 2, examples: 2 }
+    } else {
+        Plan { samples: 1000, epochs: 14, preset: "compact", input: 128, batch: 4, examples: 4 }
+    };
+    let plan =
+        Plan { samples: args.samples.unwrap_or(plan.samples), epochs: args.epochs.unwrap_or(plan.epochs), ..plan };
+    let out = &args.out;
+    let (data, run_dir, bundle, eval_dir, examples) =
+        (out.join("dataset"), out.join("run"), out.join("bundle"), out.join("eval"), out.join("examples"));
+
+    println!("[1/5] dataset: {} scenes from the embedded kit, simulated unit {}", plan.samples, args.unit);
+    let kit = Kit::procedural(25.0);
+    let params = GeneratorParams::new(0, plan.samples, &kit.source);
+    let report = generate_with_unit(&data, &kit, args.unit, 25.0, params)
+        .with_context(|| format!("generating {}", data.display()))?;
+    let scene_lines = report_lines(&report);
+
+    println!("[2/5] training: {} preset at {2}x{2}, {} epochs, flex on the CPU", plan.preset, plan.epochs, plan.input);
+    let input_hw = [plan.input, plan.input];
+    let config = FitConfig {
+        epochs: plan.epochs,
+        batch: plan.batch,
+        lr: 1e-3,
+        seed: 0,
+        checkpoint_every: 50,
+        net_range: [0.01, 1.0],
+        schedule: Schedule::Cosine,
+        warmup_steps: if args.smoke { 0 } else { 100 },
+        val_fraction: 0.1,
+        ..FitConfig::new(data.clone(), input_hw)
+    };
+    let device = model::backend::default_device();
+    let start = Start { model_config: DenseDepthConfig::new(preset(plan.preset)?), weights: None };
+    let fitted = fit(&run_dir, &config, start, &device, true).context("training (run again to resume)")?;
+
+    println!("[3/5] bundle: {}", bundle.display());
+    train::export::export_net(&fitted.net, &fitted.state, &bundle)?;
+
+    println!("[4/5] evaluation of both splits: {}", eval_dir.display());
+    let predictor = Predictor::load(&bundle, &device)?;
+    let stats = infer::eval::evaluate_dataset(&predictor, &data, &["train", "test"], &eval_dir)?;
+
+    println!("[5/5] examples: {}", examples.display());
+    let manifest = Manifest::load(&data)?;
+    write_examples(&predictor, &data, &manifest, &examples, plan.examples)?;
+    let frame_ms = time_one_frame(&predictor, &data, &manifest)?;
+    let renderer = Renderer::for_crop(&SensorUnit::from_seed(args.unit, 25.0));
+    let untouched = untouched_frames(&predictor, &renderer, if args.smoke { 2 } else { 20 })?;
+
+    check_outputs(out)?;
+    print_summary(&stats, &scene_lines, frame_ms, &fitted.state, started.elapsed().as_secs_f64(), out);
+    println!("{untouched}");
+    Ok(())
+}
+
+/// Test images with contact: camera image, true and predicted depth in false colour; the
+/// first one's predicted contact patch as a PLY.
+fn write_examples(predictor: &Predictor, data: &Path, manifest: &Manifest, dir: &Path, count: usize) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    let max = predictor.file.sensor.max_depth_mm as f32;
+    let mut chosen: Vec<_> = manifest.samples.iter().filter(|s| s.split == Split::Test).collect();
+    // Pressed frames first, a spread of contact sizes among them.
+    chosen.sort_by(|a, b| b.stats.contact_fraction.total_cmp(&a.stats.contact_fraction));
+    let step = (chosen.len() / count.max(1)).max(1);
+    const TILE_PX: u32 = 285;
+    let mut rows = Vec::new();
+    for (k, s) in chosen.into_iter().step_by(step).take(count).enumerate() {
+        let image_path = data.join(s.image.as_ref().context("the dataset has no images")?);
+        let frame = image::open(&image_path).with_context(|| format!("{}", image_path.display()))?.to_rgb8();
+        let truth = sensor::DepthMap::load_png_um(&data.join(&s.depth))?;
+        let pred = predictor.predict(&frame)?;
+        let name = format!("{:06}", s.id);
+        let true_colour = infer::colour::false_colour(&truth, &predictor.mask, max);
+        let pred_colour = infer::colour::false_colour(&pred, &predictor.mask, max);
+        save_png(&dir.join(format!("{name}_image.png")), &frame)?;
+        save_png(&dir.join(format!("{name}_true.png")), &true_colour)?;
+        save_png(&dir.join(format!("{name}_pred.png")), &pred_colour)?;
+        rows.push([frame, true_colour, pred_colour]);
+        if k == 0 {
+            write_ply(&dir.join(format!("{name}_pred.ply")), &predictor.point_cloud(&pred, CONTACT_THRESHOLD_MM))?;
+        }
+    }
+    // One picture for people: a row per example, camera image | true depth | predicted depth.
+    let mut sheet = image::RgbImage::new(3 * TILE_PX, TILE_PX * rows.len().max(1) as u32);
+    for (r, row) in rows.iter().enumerate() {
+        for (c, img) in row.iter().enumerate() {
+            let tile = image::imageops::resize(img, TILE_PX, TILE_PX, image::imageops::FilterType::Triangle);
+            image::imageops::replace(&mut sheet, &tile, (c as u32 * TILE_PX) as i64, (r as u32 * TILE_PX) as i64);
+        }
+    }
+    save_png(&dir.join("triplets.png"), &sheet)?;
+    Ok(())
+}
+
+fn save_png(path: &Path, img: &image::RgbImage) -> Result<()> {
+    let mut png = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut png, image::ImageFormat::Png).context("encoding a PNG")?;
+    sensor::io::write_atomic(path, png.get_ref())?;
+    Ok(())
+}
+
+/// Median network-only milliseconds per frame on the first test image.
+fn time_one_frame(predictor: &Predictor, data: &Path, manifest: &Manifest) -> Result<f64> {
+    let sample = manifest.samples.iter().find(|s| s.split == Split::Test).context("no test samples")?;
+    let path = data.join(sample.image.as_ref().context("the dataset has no images")?);
+    let png = std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+    Ok(infer::bench::time_frames(predictor, &png, &png, 5)?.network_ms)
+}
+
+/// Frames without contact (the unit's reference with fresh noise): how often the gate skips
+/// the network, what the network would have said, and the time saved.
+fn untouched_frames(predictor: &Predictor, renderer: &Renderer, count: u64) -> Result<String> {
+    let zeros = vec![0f32; renderer.grid().len()];
+    let useful = predictor.mask.iter().filter(|&&m| m).count().max(1);
+    let (mut skipped, mut max_mm, mut above, mut gate_s, mut net_s) = (0, 0f32, 0usize, 0f64, 0f64);
+    for seed in 0..count {
+        let frame = renderer.render(&zeros, Some(1_000_000 + seed));
+        let t = Instant::now();
+        let (_, ran) = predictor.predict_gated(&frame)?;
+        let elapsed = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let net = predictor.predict_network(std::slice::from_ref(&frame))?.remove(0);
+        net_s += t.elapsed().as_secs_f64();
+        if !ran {
+            skipped += 1;
+            gate_s += elapsed;
+        }
+        max_mm = max_mm.max(net.max_mm());
+        above += net.depth_mm.iter().filter(|&&d| d > CONTACT_THRESHOLD_MM).count();
+    }
+    Ok(format!(
+        "frames without contact ({count}, rendered with noise): the gate skipped {skipped}, in {:.2} ms each against \
+         {:.1} ms for the network, whose depth on them peaks at {max_mm:.3} mm with {:.3} % of useful pixels above \
+         the {CONTACT_THRESHOLD_MM} mm contact threshold",
+        1e3 * gate_s / skipped.max(1) as f64,
+        1e3 * net_s / count.max(1) as f64,
+        100.0 * above as f64 / (useful as u64 * count).max(1) as f64
+    ))
+}
+
+/// The outputs a user is pointed to exist and parse.
+fn check_outputs(out: &Path) -> Result<()> {
+    let stats_path = out.join("eval/stats.json");
+    let stats: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&stats_path).with_context(|| format!("{}: missing", stats_path.display()))?,
+    )
+    .with_context(|| format!("{}: not JSON", stats_path.display()))?;
+    for split in ["train", "test"] {
+        for key in ["l1_mm", "l2_mm", "contact_l1_mm", "zero_l1_mm", "zero_contact_l1_mm"] {
+            ensure!(stats[split][key]["mean"].is_number(), "{}: no {split}.{key}.mean", stats_path.display());
+        }
+    }
+    let svg_path = out.join("eval/violin.svg");
+    let svg = std::fs::read_to_string(&svg_path).with_context(|| format!("{}: missing", svg_path.display()))?;
+    ensure!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"), "{}: not an SVG", svg_path.display());
+    let dir = out.join("examples");
+    let mut pngs = 0;
+    let mut plys = 0;
+    for entry in std::fs::read_dir(&dir).with_context(|| format!("{}: missing", dir.display()))? {
+        let path = entry?.path();
+        match path.extension().and_then(|e| e.to_str()) {
+            Some("png") => {
+                image::open(&path).with_context(|| format!("{}: not a readable PNG", path.display()))?;
+                pngs += 1;
+            }
+            Some("ply") => {
+                let bytes = std::fs::read(&path)?;
+                let header_end = bytes
+                    .windows(11)
+                    .position(|w| w == b"end_header\n")
+                    .with_context(|| format!("{}: no PLY header", path.display()))?;
+                let header = std::str::from_utf8(&bytes[..header_end])?;
+                let n: usize = header
+                    .lines()
+                    .find_map(|l| l.strip_prefix("element vertex "))
+                    .with_context(|| format!("{}: no vertex count", path.display()))?
+                    .parse()?;
+                ensure!(bytes.len() - header_end - 11 == n * 12, "{}: size does not match its header", path.display());
+                plys += 1;
+            }
+            _ => {}
+        }
+    }
+    if pngs < 3 || plys == 0 {
+        bail!("{}: expected example PNGs and a PLY, found {pngs} PNGs and {plys} PLY files", dir.display());
+    }
+    Ok(())
+}
+
+fn print_summary(
+    stats: &std::collections::BTreeMap<String, SplitStats>,
+    scene_lines: &[String],
+    frame_ms: f64,
+    state: &train::checkpoint::RunState,
+    seconds: f64,
+    out: &Path,
+) {
+    println!("\nscenes (contact statistics, so the errors can be read against them):");
+    for line in scene_lines {
+        println!("{line}");
+    }
+    println!("\nmean per-image errors (mm; useful pixels, and true contact pixels only):");
+    println!("| split | images | L1 | zeros L1 | contact L1 | zeros contact L1 | L2 (mm^2) |");
+    println!("|---|---:|---:|---:|---:|---:|---:|");
+    for (name, s) in stats {
+        println!(
+            "| {name} | {} | {:.4} | {:.4} | {:.4} | {:.4} | {:.5} |",
+            s.l1_mm.n, s.l1_mm.mean, s.zero_l1_mm.mean, s.contact_l1_mm.mean, s.zero_contact_l1_mm.mean, s.l2_mm.mean
+        );
+    }
+    if let Some(test) = stats.get("test") {
+        let ratio = test.zero_contact_l1_mm.mean / test.contact_l1_mm.mean;
+        let verdict = |ok: bool| if ok { "met" } else { "NOT met" };
+        println!(
+            "goals: test L1 {:.4} mm below the paper's {PAPER_TEST_L1_MM} mm: {}; contact L1 {ratio:.2}x better than zeros (goal 3x): {}",
+            test.l1_mm.mean,
+            verdict(test.l1_mm.mean < PAPER_TEST_L1_MM),
+            verdict(ratio >= 3.0)
+        );
+    }
+    if let Some(best) = state.best() {
+        println!("model: epoch {} of {} (best on held-out training samples)", best.epoch, state.history.len());
+    }
+    println!("network: {frame_ms:.1} ms per frame on the CPU (flex)");
+    println!("took {:.1} min; everything is in {}", seconds / 60.0, out.display());
+    println!(
+        "  eval/stats.json, eval/errors.csv, eval/violin.svg, examples/triplets.png (image, true, predicted), examples/*.ply, bundle/"
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `cargo xtask quickstart --smoke` end to end; `run` itself checks that its outputs exist
+    /// and parse. A second run resumes every stage and gives the same statistics.
+    #[test]
+    fn smoke_quickstart_runs_end_to_end_and_resumes() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("qs");
+        let args = || Args { out: out.clone(), smoke: true, samples: None, epochs: None, unit: 7 };
+        run(args()).unwrap();
+        let first = std::fs::read_to_string(out.join("eval/stats.json")).unwrap();
+        run(args()).unwrap();
+        assert_eq!(std::fs::read_to_string(out.join("eval/stats.json")).unwrap(), first);
+        let bundle: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("bundle/bundle.json")).unwrap()).unwrap();
+        assert!(bundle["training"]["test_l1_mm"].is_number());
+        // A damaged output is caught.
+        std::fs::write(out.join("eval/stats.json"), "{").unwrap();
+        assert!(check_outputs(&out).is_err());
+    }
+}
