@@ -54,7 +54,7 @@ pub fn run(args: Args) -> Result<()> {
         seed: 7,
         checkpoint_every: 1_000_000,
         train_fraction: fraction,
-        net_range: [0.01, 1.0],
+        net_range: model::UNIT_NET_RANGE,
         schedule: Schedule::Cosine,
         warmup_steps: args.warmup_steps,
         val_fraction: 0.1,

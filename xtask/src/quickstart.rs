@@ -76,7 +76,7 @@ pub fn run(args: Args) -> Result<()> {
         lr: 1e-3,
         seed: 0,
         checkpoint_every: 50,
-        net_range: [0.01, 1.0],
+        net_range: model::UNIT_NET_RANGE,
         schedule: Schedule::Cosine,
         warmup_steps: if args.smoke { 0 } else { 100 },
         val_fraction: 0.1,
@@ -146,10 +146,7 @@ fn write_examples(predictor: &Predictor, data: &Path, manifest: &Manifest, dir: 
 }
 
 fn save_png(path: &Path, img: &image::RgbImage) -> Result<()> {
-    let mut png = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut png, image::ImageFormat::Png).context("encoding a PNG")?;
-    sensor::io::write_atomic(path, png.get_ref())?;
-    Ok(())
+    Ok(sensor::io::write_atomic(path, &sensor::io::encode_png_rgb(img))?)
 }
 
 /// Median network-only milliseconds per frame on the first test image.
@@ -217,18 +214,7 @@ fn check_outputs(out: &Path) -> Result<()> {
                 pngs += 1;
             }
             Some("ply") => {
-                let bytes = std::fs::read(&path)?;
-                let header_end = bytes
-                    .windows(11)
-                    .position(|w| w == b"end_header\n")
-                    .with_context(|| format!("{}: no PLY header", path.display()))?;
-                let header = std::str::from_utf8(&bytes[..header_end])?;
-                let n: usize = header
-                    .lines()
-                    .find_map(|l| l.strip_prefix("element vertex "))
-                    .with_context(|| format!("{}: no vertex count", path.display()))?
-                    .parse()?;
-                ensure!(bytes.len() - header_end - 11 == n * 12, "{}: size does not match its header", path.display());
+                infer::cloud::read_ply(&path)?;
                 plys += 1;
             }
             _ => {}
@@ -271,7 +257,7 @@ fn print_summary(
             verdict(ratio >= 3.0)
         );
     }
-    if let Some(best) = state.best() {
+    if let Some(best) = state.selected() {
         println!("model: epoch {} of {} (best on held-out training samples)", best.epoch, state.history.len());
     }
     println!("network: {frame_ms:.1} ms per frame on the CPU (flex)");

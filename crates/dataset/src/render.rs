@@ -475,16 +475,7 @@ impl GaussianNoise {
     }
 }
 
-/// Encodes an RGB image as PNG (fast compression: noisy images barely compress anyway).
-pub fn encode_png_rgb(img: &RgbImage) -> Vec<u8> {
-    use image::ImageEncoder;
-    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-    let mut out = Vec::with_capacity(img.len() / 2);
-    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Up)
-        .write_image(img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgb8)
-        .expect("in-memory PNG encode");
-    out
-}
+pub use sensor::io::encode_png_rgb;
 
 #[cfg(test)]
 mod tests {

@@ -55,6 +55,33 @@ pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<(), sensor::SensorEr
     })
 }
 
+/// Reads a PLY that [`write_ply`] wrote (binary little-endian, float x, y, z per vertex),
+/// checking that the file's size matches its header.
+pub fn read_ply(path: &Path) -> Result<PointCloud, sensor::SensorError> {
+    let bad = |message: &str| sensor::SensorError::InFile { path: path.to_path_buf(), message: message.into() };
+    let bytes = std::fs::read(path).map_err(|e| sensor::SensorError::io(path, e))?;
+    const END: &[u8] = b"end_header\n";
+    let header_end = bytes.windows(END.len()).position(|w| w == END).ok_or_else(|| bad("no PLY header"))? + END.len();
+    let header = std::str::from_utf8(&bytes[..header_end]).map_err(|_| bad("PLY header is not text"))?;
+    if !header.starts_with("ply\nformat binary_little_endian 1.0\n") {
+        return Err(bad("not a binary little-endian PLY"));
+    }
+    let n: usize = header
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .and_then(|v| v.trim().parse().ok())
+        .ok_or_else(|| bad("PLY header has no vertex count"))?;
+    let body = &bytes[header_end..];
+    if body.len() != n * 12 {
+        return Err(bad(&format!("{} bytes of vertices, the header says {n} vertices of 12 bytes", body.len())));
+    }
+    let points_mm = body
+        .chunks_exact(12)
+        .map(|v| std::array::from_fn(|k| f32::from_le_bytes(v[4 * k..4 * k + 4].try_into().expect("4 bytes"))))
+        .collect();
+    Ok(PointCloud { points_mm })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -86,13 +113,11 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("c.ply");
         write_ply(&path, &contact).unwrap();
+        assert_eq!(read_ply(&path).unwrap(), contact);
+        // A cut file is named as such.
         let bytes = std::fs::read(&path).unwrap();
-        let header_end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
-        let header = std::str::from_utf8(&bytes[..header_end]).unwrap();
-        let n: usize = header.lines().find_map(|l| l.strip_prefix("element vertex ")).unwrap().parse().unwrap();
-        assert_eq!(n, contact.points_mm.len());
-        assert_eq!(bytes.len() - header_end, n * 12);
-        let x0 = f32::from_le_bytes(bytes[header_end..header_end + 4].try_into().unwrap());
-        assert_eq!(x0, contact.points_mm[0][0]);
+        std::fs::write(&path, &bytes[..bytes.len() - 7]).unwrap();
+        let err = read_ply(&path).unwrap_err().to_string();
+        assert!(err.contains("c.ply") && err.contains("the header says"), "{err}");
     }
 }

@@ -69,14 +69,7 @@ enum Command {
 fn bench(bundle: PathBuf, image: Option<PathBuf>, device: String, repeats: usize) -> Result<()> {
     let dev = model::backend::device(&device).map_err(anyhow::Error::msg)?;
     let predictor = Predictor::load(&bundle, &dev)?;
-    let reference = match &predictor.reference {
-        Some(r) => {
-            let mut png = std::io::Cursor::new(Vec::new());
-            r.write_to(&mut png, image::ImageFormat::Png).context("encoding the reference image")?;
-            Some(png.into_inner())
-        }
-        None => None,
-    };
+    let reference = predictor.reference.as_ref().map(sensor::io::encode_png_rgb);
     let frame = match &image {
         Some(path) => std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?,
         None => reference.clone().context("the bundle has no reference image: give a frame with --image")?,
@@ -153,9 +146,7 @@ fn predict(
     }
     if let Some(path) = colour_out {
         let img = infer::colour::false_colour(&depth, &predictor.mask, predictor.file.sensor.max_depth_mm as f32);
-        let mut png = std::io::Cursor::new(Vec::new());
-        img.write_to(&mut png, image::ImageFormat::Png).context("encoding the false-colour image")?;
-        sensor::io::write_atomic(&path, png.get_ref())?;
+        sensor::io::write_atomic(&path, &sensor::io::encode_png_rgb(&img))?;
         println!("wrote {}", path.display());
     }
     if let Some(path) = ply {

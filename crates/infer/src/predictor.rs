@@ -4,9 +4,8 @@ use std::path::{Path, PathBuf};
 
 use burn::tensor::{Device, Tensor, TensorData};
 use image::RgbImage;
-use image::imageops::FilterType;
 use model::DenseDepth;
-use model::bundle::{BundleFile, load_bundle};
+use model::bundle::{BundleFile, encode_input, load_bundle};
 use sensor::DepthMap;
 
 #[derive(Debug, thiserror::Error)]
@@ -146,16 +145,7 @@ impl Predictor {
             self.check(f)?;
         }
         let (h, w) = (self.file.input_height_px, self.file.input_width_px);
-        let mut input = vec![0f32; frames.len() * 3 * h * w];
-        for (n, frame) in frames.iter().enumerate() {
-            let small = image::imageops::resize(frame, w as u32, h as u32, FilterType::Triangle);
-            let base = n * 3 * h * w;
-            for (k, px) in small.pixels().enumerate() {
-                for c in 0..3 {
-                    input[base + c * h * w + k] = px.0[c] as f32 / 255.0;
-                }
-            }
-        }
+        let input: Vec<f32> = frames.iter().flat_map(|f| encode_input(f, [h, w])).collect();
         Ok(Tensor::<4>::from_data(TensorData::new(input, [frames.len(), 3, h, w]), &self.device))
     }
 

@@ -49,6 +49,20 @@ pub struct BundleFile {
 /// The input encoding every bundle of this version uses.
 pub const INPUT_ENCODING: &str = "rgb/255";
 
+/// A sensor crop as the network's input ([`INPUT_ENCODING`]): resized to `[h, w]` (triangle
+/// filter), channel-major R, G, B planes, values / 255. Training and inference both call this,
+/// so the two cannot drift apart.
+pub fn encode_input(img: &image::RgbImage, [h, w]: [usize; 2]) -> Vec<f32> {
+    let small = image::imageops::resize(img, w as u32, h as u32, image::imageops::FilterType::Triangle);
+    let mut input = vec![0f32; 3 * h * w];
+    for (k, px) in small.pixels().enumerate() {
+        for c in 0..3 {
+            input[c * h * w + k] = px.0[c] as f32 / 255.0;
+        }
+    }
+    input
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum BundleError {
     #[error("{path}: {message}")]

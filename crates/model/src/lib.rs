@@ -16,5 +16,5 @@ pub mod upsample;
 pub use config::{DenseDepthConfig, DenseNetConfig};
 pub use densedepth::DenseDepth;
 pub use loss::{DepthLoss, DepthLossConfig};
-pub use scale::DepthScale;
+pub use scale::{DepthScale, PAPER_NET_RANGE, UNIT_NET_RANGE};
 pub use upsample::Upsample;

@@ -5,6 +5,13 @@
 
 use serde::{Deserialize, Serialize};
 
+/// The paper's network units of zero and maximum depth.
+pub const PAPER_NET_RANGE: [f32; 2] = [10.0, 1000.0];
+
+/// The same map shrunk a thousandfold: a network trained from scratch on a short budget
+/// reaches these outputs in far fewer steps.
+pub const UNIT_NET_RANGE: [f32; 2] = [0.01, 1.0];
+
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DepthScale {
     /// Depth (mm) that maps to `net_max`.
@@ -18,7 +25,7 @@ pub struct DepthScale {
 impl DepthScale {
     /// The paper's mapping: 0..`max_depth_mm` to 10..1000.
     pub fn paper(max_depth_mm: f32) -> Self {
-        DepthScale { max_depth_mm, net_min: 10.0, net_max: 1000.0 }
+        DepthScale { max_depth_mm, net_min: PAPER_NET_RANGE[0], net_max: PAPER_NET_RANGE[1] }
     }
 
     /// Width of the network's value range (990 for the paper's); SSIM's dynamic range `L`.

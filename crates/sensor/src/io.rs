@@ -18,6 +18,18 @@ pub fn write_atomic_unsynced(path: &Path, bytes: &[u8]) -> Result<(), SensorErro
     write_file(path, false, |f| f.write_all(bytes))
 }
 
+/// Encodes an RGB image as PNG, with fast compression: camera frames are noisy and barely
+/// compress, and a generator or a frame loop writes many.
+pub fn encode_png_rgb(img: &image::RgbImage) -> Vec<u8> {
+    use image::ImageEncoder;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    let mut out = Vec::with_capacity(img.len() / 2);
+    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Up)
+        .write_image(img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgb8)
+        .expect("in-memory PNG encode");
+    out
+}
+
 /// Whether a PNG file ends with its `IEND` chunk: a cheap check that it was written whole.
 pub fn png_is_complete(path: &Path) -> bool {
     use std::io::{Read, Seek, SeekFrom};

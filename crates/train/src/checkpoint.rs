@@ -38,6 +38,12 @@ impl RunState {
     pub fn best(&self) -> Option<&EpochMetrics> {
         self.history.iter().filter(|m| m.val_l1_mm.is_finite()).min_by(|a, b| a.val_l1_mm.total_cmp(&b.val_l1_mm))
     }
+
+    /// The epoch whose model the run hands on: the best one when it validates on held-out
+    /// training samples, else the last (picking on the test split would leak it).
+    pub fn selected(&self) -> Option<&EpochMetrics> {
+        if self.config.val_fraction > 0.0 { self.best() } else { self.history.last() }
+    }
 }
 
 pub fn dir(run: &Path) -> PathBuf {

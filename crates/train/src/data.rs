@@ -13,7 +13,6 @@ use burn::tensor::{Device, Tensor, TensorData};
 use dataset::Split;
 use dataset::format::{Manifest, SampleRecord};
 use dataset::rng::SplitMix64;
-use image::imageops::FilterType;
 use model::DepthScale;
 use sensor::{DepthMap, Sensor};
 
@@ -128,13 +127,7 @@ impl DepthDataset {
             return Err(bad(&depth_path, format!("depth {d} mm is outside 0..{} mm", self.sensor.max_depth_mm)));
         }
         let [h, w] = self.input_hw;
-        let rgb = image::imageops::resize(&img.to_rgb8(), w as u32, h as u32, FilterType::Triangle);
-        let mut image = vec![0f32; 3 * h * w];
-        for (k, px) in rgb.pixels().enumerate() {
-            for c in 0..3 {
-                image[c * h * w + k] = px.0[c] as f32 / 255.0;
-            }
-        }
+        let mut image = model::bundle::encode_input(&img.to_rgb8(), self.input_hw);
         if let Some(j) = jitter {
             let mut rng = SplitMix64::new(j.seed);
             for v in &mut image {

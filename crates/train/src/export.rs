@@ -26,7 +26,6 @@ pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device) -> Resu
 /// The bundle records the network's error on the dataset's test split, so that every speed
 /// figure taken from it can stand beside an error figure.
 pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path) -> Result<()> {
-    let data = DepthDataset::open(&state.config.data, None, state.config.input_hw)?;
     let mut test = DepthDataset::open(&state.config.data, Some(dataset::Split::Test), state.config.input_hw)?;
     test.scale = state.config.scale(test.sensor.max_depth_mm);
     let batcher = crate::data::DepthBatcher { input_hw: state.config.input_hw, mask: test.mask.clone() };
@@ -38,8 +37,8 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path) -> Result<()> 
         input_height_px: state.config.input_hw[0],
         input_width_px: state.config.input_hw[1],
         input_encoding: INPUT_ENCODING.into(),
-        depth_scale: state.config.scale(data.sensor.max_depth_mm),
-        sensor: data.sensor.clone(),
+        depth_scale: test.scale,
+        sensor: test.sensor.clone(),
         reference_image: None,
         training: serde_json::json!({
             "data": state.config.data,
@@ -53,10 +52,10 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path) -> Result<()> 
             "history": state.history,
             "test_l1_mm": if test_l1_mm.is_finite() { Some(test_l1_mm) } else { None },
             "test_images": test.records.len(),
-            "selected_epoch": state.best().filter(|_| state.config.val_fraction > 0.0).map_or(state.epoch, |b| b.epoch),
+            "selected_epoch": state.selected().map_or(state.epoch, |m| m.epoch),
         }),
     };
-    write_bundle(out, net, &file, data.reference_png().as_deref())?;
+    write_bundle(out, net, &file, test.reference_png().as_deref())?;
     Ok(())
 }
 

@@ -137,8 +137,8 @@ enum DepthUnits {
 impl DepthUnits {
     fn net_range(self) -> [f32; 2] {
         match self {
-            DepthUnits::Paper => [10.0, 1000.0],
-            DepthUnits::Unit => [0.01, 1.0],
+            DepthUnits::Paper => model::PAPER_NET_RANGE,
+            DepthUnits::Unit => model::UNIT_NET_RANGE,
         }
     }
 }

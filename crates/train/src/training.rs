@@ -70,7 +70,7 @@ fn one() -> f64 {
 }
 
 fn paper_range() -> [f32; 2] {
-    [10.0, 1000.0]
+    model::PAPER_NET_RANGE
 }
 
 /// How the learning rate changes over a run.
@@ -180,10 +180,10 @@ pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, re
     if config.val_fraction > 0.0 {
         // Hold out a seeded part of the training samples; the test split stays unseen.
         let n = train.records.len();
-        let held = ((n as f64 * config.val_fraction).round() as usize).clamp(1, n.saturating_sub(1).max(1));
         if n < 2 {
             bail!("{}: a validation hold-out needs at least two training samples", config.data.display());
         }
+        let held = ((n as f64 * config.val_fraction).round() as usize).clamp(1, n - 1);
         let order = permutation(n, config.seed ^ 0x7a1d, 0);
         let mut is_val = vec![false; n];
         order.iter().take(held).for_each(|&i| is_val[i] = true);
