@@ -158,6 +158,7 @@ fn main() -> Result<()> {
             "fitness": result.fitness,
             "inlier_rmse_mm": result.inlier_rmse_mm,
             "iterations": result.iterations,
+            "ms": ms,
         });
         sensor::io::write_atomic(&dir.join("icp.json"), serde_json::to_string_pretty(&json)?.as_bytes())?;
         println!("wrote {}/source.ply, target.ply, icp.json", dir.display());
