@@ -5,6 +5,7 @@ mod bench_finetune;
 mod bench_model;
 mod bench_raycast;
 mod bench_render;
+mod bench_table;
 mod quickstart;
 mod timing;
 
@@ -38,6 +39,9 @@ enum Bench {
     Model(bench_model::Args),
     /// Simulated unit images: time per stage of a sample; saw-tooth calibration time and error.
     Render(bench_render::Args),
+    /// Run time against error: every preset and input size, same training budget, each backend;
+    /// writes its section of BENCHMARKS.md and an SVG scatter.
+    Table(bench_table::Args),
     /// Fine-tuning a unit-A model for unit B with 5/10/25 % of B's data, vs training on all of B.
     Finetune(bench_finetune::Args),
 }
@@ -49,6 +53,7 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Model(args) } => bench_model::run(args),
         Command::Bench { what: Bench::Render(args) } => bench_render::run(args),
         Command::Bench { what: Bench::Finetune(args) } => bench_finetune::run(args),
+        Command::Bench { what: Bench::Table(args) } => bench_table::run(args),
         Command::Quickstart(args) => quickstart::run(args),
     };
     match result {

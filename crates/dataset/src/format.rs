@@ -69,6 +69,10 @@ pub struct GeneratorParams {
     pub kit: String,
     pub z_travel_mm: [f32; 2],
     pub b_axis_deg: [f32; 2],
+    /// Chance that a sample's rig is lifted clear of the sensor ([`LIFTED_Z_TRAVEL_MM`]): a
+    /// frame without contact, so that a network learns to answer zero where nothing touches.
+    #[serde(default)]
+    pub lifted_fraction: f32,
     /// Chance that a sample is drawn from the test trials.
     pub test_fraction: f32,
     pub depth_u8: bool,
@@ -87,12 +91,16 @@ impl GeneratorParams {
             kit: kit.to_string(),
             z_travel_mm: [0.0, 2.5],
             b_axis_deg: [0.0, 360.0],
+            lifted_fraction: 0.0,
             test_fraction: 0.1,
             depth_u8: false,
             unit: None,
         }
     }
 }
+
+/// The z travel of a lifted sample (mm): well above any kit's reach of a 25 mm hemisphere.
+pub const LIFTED_Z_TRAVEL_MM: f32 = -40.0;
 
 /// `generator.json`: parameters and the sensor, fixed for the life of a dataset folder.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

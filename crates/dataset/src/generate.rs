@@ -10,7 +10,7 @@ use sensor::Sensor;
 
 use crate::format::{
     DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, Manifest, SampleRecord, SplitSummary,
-    read_json, sample_name, write_json,
+    LIFTED_Z_TRAVEL_MM, read_json, sample_name, write_json,
 };
 use crate::kit::{Kit, Split, Trial};
 use crate::progress::Progress;
@@ -32,10 +32,14 @@ pub fn draw_sample<'k>(kit: &'k Kit, params: &GeneratorParams, id: u32) -> (&'k 
     let trial = trials[rng.below(trials.len())];
     let [b0, b1] = params.b_axis_deg;
     let [z0, z1] = params.z_travel_mm;
-    let pose = RigPose {
+    let mut pose = RigPose {
         b_axis_deg: rng.range(b0 as f64, b1 as f64) as f32,
         z_travel_mm: rng.range(z0 as f64, z1 as f64) as f32,
     };
+    // Drawn last and only when asked for, so that datasets made without lifting keep their samples.
+    if params.lifted_fraction > 0.0 && rng.unit() < params.lifted_fraction as f64 {
+        pose.z_travel_mm = LIFTED_Z_TRAVEL_MM;
+    }
     (trial, pose)
 }
 

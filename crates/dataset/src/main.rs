@@ -93,11 +93,15 @@ struct GenerateArgs {
     /// Sensor description (JSON); default: the paper's sensor.
     #[arg(long)]
     sensor: Option<PathBuf>,
-    /// Range of the CNC's z travel (mm) from the seated pose.
-    #[arg(long, default_value_t = 0.0)]
+    /// Range of the CNC's z travel (mm) from the seated pose (negative: raised).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     z_min_mm: f32,
-    #[arg(long, default_value_t = 2.5)]
+    #[arg(long, default_value_t = 2.5, allow_negative_numbers = true)]
     z_max_mm: f32,
+    /// Chance that a sample's rig is lifted clear of the sensor: frames without contact, which
+    /// a network must learn to answer with zeros.
+    #[arg(long, default_value_t = 0.0)]
+    lifted_fraction: f32,
     /// Chance that a sample is drawn from the test trials.
     #[arg(long, default_value_t = 0.1)]
     test_fraction: f32,
@@ -123,6 +127,9 @@ fn generate(args: GenerateArgs) -> Result<()> {
     if !(0.0..=1.0).contains(&args.test_fraction) {
         bail!("--test-fraction must be between 0 and 1, got {}", args.test_fraction);
     }
+    if !(0.0..=1.0).contains(&args.lifted_fraction) {
+        bail!("--lifted-fraction must be between 0 and 1, got {}", args.lifted_fraction);
+    }
     let unit = args.unit.map(|seed| SensorUnit::from_seed(seed, args.radius_mm));
     let sensor = match (&args.sensor, &unit) {
         (Some(path), _) => Sensor::load_json(path)?,
@@ -141,6 +148,7 @@ fn generate(args: GenerateArgs) -> Result<()> {
         kit: kit.source.clone(),
         z_travel_mm: [args.z_min_mm, args.z_max_mm],
         b_axis_deg: [0.0, 360.0],
+        lifted_fraction: args.lifted_fraction,
         test_fraction: args.test_fraction,
         depth_u8: args.depth_u8,
         unit: args.unit,

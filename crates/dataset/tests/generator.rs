@@ -192,3 +192,32 @@ fn sawtooth_and_calibrate_commands_round_trip() {
     assert!(String::from_utf8_lossy(&r.stderr).contains("bad.png"));
     assert!(!out2.exists());
 }
+
+#[test]
+fn lifted_samples_have_no_contact_and_leave_the_others_unchanged() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (plain, lifted) = (tmp.path().join("plain"), tmp.path().join("lifted"));
+    // A raised z range is accepted as written (a negative number, not a flag).
+    let args = ["--z-min-mm", "-0.5", "--z-max-mm", "2.0"];
+    let r = generate(&plain, 40, &args);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let r = generate(&lifted, 40, &[&args[..], &["--lifted-fraction", "0.3"]].concat());
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let (a, b) = (dataset::format::Manifest::load(&plain).unwrap(), dataset::format::Manifest::load(&lifted).unwrap());
+    let mut lifted_count = 0;
+    for (p, l) in a.samples.iter().zip(&b.samples) {
+        assert_eq!((p.trial, p.split, p.scene.pose.b_axis_deg), (l.trial, l.split, l.scene.pose.b_axis_deg));
+        let depth = sensor::DepthMap::load_png_um(&lifted.join(&l.depth)).unwrap();
+        if l.scene.pose.z_travel_mm == dataset::format::LIFTED_Z_TRAVEL_MM {
+            lifted_count += 1;
+            assert_eq!(l.stats.contact_fraction, 0.0, "sample {}", l.id);
+            assert!(depth.depth_mm.iter().all(|&d| d == 0.0), "sample {}: a lifted rig presses", l.id);
+        } else {
+            assert_eq!(p.scene.pose.z_travel_mm, l.scene.pose.z_travel_mm);
+            assert!(l.stats.contact_fraction > 0.0, "sample {}", l.id);
+        }
+    }
+    assert!((5..=20).contains(&lifted_count), "{lifted_count} of 40 lifted at a 0.3 chance");
+    let r = generate(&tmp.path().join("bad"), 3, &["--lifted-fraction", "1.5"]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("--lifted-fraction"));
+}

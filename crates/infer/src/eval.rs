@@ -145,99 +145,6 @@ impl SplitStats {
     }
 }
 
-/// A violin plot (SVG) of per-image L1 for each named split, with the ground truth's
-/// uncertainty as a dashed line.
-pub fn violin_svg(groups: &[(&str, Vec<f64>)]) -> String {
-    let (w, h, left, bottom, top) = (640.0, 420.0, 70.0, 50.0, 30.0);
-    let all: Vec<f64> = groups.iter().flat_map(|g| g.1.iter().copied()).filter(|v| v.is_finite()).collect();
-    let y_max = all.iter().copied().fold(GROUND_TRUTH_UNCERTAINTY_MM, f64::max) * 1.1;
-    let y = |v: f64| top + (h - top - bottom) * (1.0 - v / y_max);
-    let mut svg = format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" font-family=\"sans-serif\" font-size=\"13\">\n\
-         <rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n\
-         <text x=\"{}\" y=\"18\" text-anchor=\"middle\">Per-image mean L1 error over useful pixels</text>\n",
-        w / 2.0
-    );
-    // Axis and ticks.
-    svg += &format!("<line x1=\"{left}\" y1=\"{top}\" x2=\"{left}\" y2=\"{}\" stroke=\"black\"/>\n", h - bottom);
-    for k in 0..=5 {
-        let v = y_max * k as f64 / 5.0;
-        svg += &format!(
-            "<line x1=\"{}\" y1=\"{yv:.1}\" x2=\"{left}\" y2=\"{yv:.1}\" stroke=\"black\"/><text x=\"{}\" y=\"{:.1}\" text-anchor=\"end\">{v:.3}</text>\n",
-            left - 5.0,
-            left - 8.0,
-            y(v) + 4.0,
-            yv = y(v)
-        );
-    }
-    svg += &format!(
-        "<text x=\"18\" y=\"{:.1}\" transform=\"rotate(-90 18 {:.1})\" text-anchor=\"middle\">L1 (mm)</text>\n",
-        h / 2.0,
-        h / 2.0
-    );
-    let slot = (w - left - 20.0) / groups.len().max(1) as f64;
-    let colours = ["#4c72b0", "#dd8452", "#55a868", "#c44e52"];
-    for (g, (name, values)) in groups.iter().enumerate() {
-        let cx = left + slot * (g as f64 + 0.5);
-        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
-        v.sort_by(f64::total_cmp);
-        svg += &format!(
-            "<text x=\"{cx:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{name} (n = {})</text>\n",
-            h - bottom + 20.0,
-            v.len()
-        );
-        if v.is_empty() {
-            continue;
-        }
-        // Gaussian kernel density, Silverman's bandwidth.
-        let s = Summary::of(v.iter().copied());
-        let bw = (1.06 * s.sd.max(1e-6) * (v.len() as f64).powf(-0.2)).max(y_max * 0.01);
-        let steps = 80;
-        let (lo, hi) = ((s.min - 2.0 * bw).max(0.0), s.max + 2.0 * bw);
-        let dens: Vec<(f64, f64)> = (0..=steps)
-            .map(|k| {
-                let t = lo + (hi - lo) * k as f64 / steps as f64;
-                let d = v.iter().map(|x| (-0.5 * ((t - x) / bw).powi(2)).exp()).sum::<f64>();
-                (t, d)
-            })
-            .collect();
-        let peak = dens.iter().map(|d| d.1).fold(0.0, f64::max).max(1e-12);
-        let half = slot * 0.4;
-        let mut pts: Vec<String> =
-            dens.iter().map(|(t, d)| format!("{:.1},{:.1}", cx + half * d / peak, y(*t))).collect();
-        pts.extend(dens.iter().rev().map(|(t, d)| format!("{:.1},{:.1}", cx - half * d / peak, y(*t))));
-        let colour = colours[g % colours.len()];
-        svg += &format!(
-            "<polygon points=\"{}\" fill=\"{colour}\" fill-opacity=\"0.6\" stroke=\"{colour}\"/>\n",
-            pts.join(" ")
-        );
-        svg += &format!(
-            "<line x1=\"{cx:.1}\" y1=\"{:.1}\" x2=\"{cx:.1}\" y2=\"{:.1}\" stroke=\"black\" stroke-width=\"4\"/>\n\
-             <circle cx=\"{cx:.1}\" cy=\"{:.1}\" r=\"4\" fill=\"white\" stroke=\"black\"/>\n\
-             <line x1=\"{:.1}\" y1=\"{ym:.1}\" x2=\"{:.1}\" y2=\"{ym:.1}\" stroke=\"black\"/>\n\
-             <text x=\"{:.1}\" y=\"{:.1}\">mean {:.3}</text>\n",
-            y(s.q1),
-            y(s.q3),
-            y(s.median),
-            cx - half * 0.5,
-            cx + half * 0.5,
-            cx + half * 0.55,
-            y(s.mean) + 4.0,
-            s.mean,
-            ym = y(s.mean)
-        );
-    }
-    let yu = y(GROUND_TRUTH_UNCERTAINTY_MM);
-    svg += &format!(
-        "<line x1=\"{left}\" y1=\"{yu:.1}\" x2=\"{:.1}\" y2=\"{yu:.1}\" stroke=\"#c00\" stroke-dasharray=\"6 4\"/>\n\
-         <text x=\"{:.1}\" y=\"{:.1}\" fill=\"#c00\" text-anchor=\"end\">ground-truth uncertainty {GROUND_TRUTH_UNCERTAINTY_MM} mm</text>\n</svg>\n",
-        w - 20.0,
-        w - 22.0,
-        yu - 5.0
-    );
-    svg
-}
-
 /// Evaluates `predictor` on the named splits of a dataset folder (with images), printing one
 /// line per split, and writes `out/stats.json` (keyed by split), `errors.csv` and `violin.svg`.
 pub fn evaluate_dataset(
@@ -303,7 +210,7 @@ pub fn evaluate_dataset(
     }
     sensor::io::write_atomic(&out.join("errors.csv"), csv.as_bytes())?;
     let groups: Vec<(&str, Vec<f64>)> = groups.into_iter().collect();
-    sensor::io::write_atomic(&out.join("violin.svg"), violin_svg(&groups).as_bytes())?;
+    sensor::io::write_atomic(&out.join("violin.svg"), crate::plot::violin_svg(&groups)?.as_bytes())?;
     Ok(stats)
 }
 
@@ -336,8 +243,5 @@ mod tests {
         assert!((s.sd - (5.0f64 / 3.0).sqrt()).abs() < 1e-12);
         assert!((s.median - 2.5).abs() < 1e-12);
         assert!((s.q1 - 1.75).abs() < 1e-12 && (s.q3 - 3.25).abs() < 1e-12);
-        let svg = violin_svg(&[("train", vec![0.2, 0.25, 0.3]), ("test", vec![0.28, 0.31])]);
-        assert!(svg.starts_with("<svg") && svg.contains("train (n = 3)") && svg.contains("ground-truth uncertainty"));
-        assert_eq!(svg.matches("<polygon").count(), 2);
     }
 }

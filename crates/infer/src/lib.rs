@@ -7,6 +7,7 @@ pub mod colour;
 pub mod eval;
 pub mod icp;
 pub mod kdtree;
+pub mod plot;
 pub mod predictor;
 
 pub use cloud::{PointCloud, write_ply};

@@ -52,9 +52,82 @@ pub fn resize_plane(values: &[f32], [height, width]: [usize; 2], [new_height, ne
     out
 }
 
+/// Which pixels of a `[height, width]` grid lie wholly on true pixels of a square `side` x
+/// `side` mask: the network output pixels a masked loss trains (training and inference share it).
+pub fn covered_mask(mask: &[bool], side: usize, [height, width]: [usize; 2]) -> Vec<bool> {
+    let full: Vec<f32> = mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect();
+    resize_plane(&full, [side, side], [height, width]).into_iter().map(|v| v > 0.999).collect()
+}
+
+/// Replaces the values of pixels outside `mask` with the mean of their already-known 8-neighbours,
+/// ring by ring outwards, so that resampling near the mask's edge mixes in only extrapolated
+/// values, never whatever lies outside (an untrained network's border, say). Pixels that no
+/// ring reaches (an empty mask) keep their values.
+pub fn fill_outside(values: &mut [f32], mask: &[bool], [height, width]: [usize; 2]) {
+    assert_eq!(values.len(), height * width, "plane size");
+    assert_eq!(mask.len(), height * width, "mask size");
+    let mut known = mask.to_vec();
+    loop {
+        let mut next = known.clone();
+        let mut changed = false;
+        for y in 0..height {
+            for x in 0..width {
+                let i = y * width + x;
+                if known[i] {
+                    continue;
+                }
+                let (mut sum, mut n) = (0f32, 0u32);
+                for ny in y.saturating_sub(1)..=(y + 1).min(height - 1) {
+                    for nx in x.saturating_sub(1)..=(x + 1).min(width - 1) {
+                        let j = ny * width + nx;
+                        if known[j] {
+                            sum += values[j];
+                            n += 1;
+                        }
+                    }
+                }
+                if n > 0 {
+                    values[i] = sum / n as f32;
+                    next[i] = true;
+                    changed = true;
+                }
+            }
+        }
+        known = next;
+        if !changed {
+            break;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn covered_mask_keeps_pixels_wholly_inside() {
+        // A 4x4 mask with its right half true, halved: only the right column is wholly covered.
+        let mask: Vec<bool> = (0..16).map(|i| i % 4 >= 2).collect();
+        assert_eq!(covered_mask(&mask, 4, [2, 2]), vec![false, true, false, true]);
+    }
+
+    #[test]
+    fn fill_outside_extends_the_known_values_ring_by_ring() {
+        // Known: the centre of a 5x5 grid (4.0); garbage elsewhere.
+        let mut v = vec![100.0f32; 25];
+        v[12] = 4.0;
+        let mask: Vec<bool> = (0..25).map(|i| i == 12).collect();
+        fill_outside(&mut v, &mask, [5, 5]);
+        assert!(v.iter().all(|&x| x == 4.0), "{v:?}");
+        // Two known values: a pixel between them takes their mean; known pixels are untouched.
+        let mut v = vec![9.0, -1.0, 3.0];
+        fill_outside(&mut v, &[true, false, true], [1, 3]);
+        assert_eq!(v, vec![9.0, 6.0, 3.0]);
+        // Nothing known: nothing changes.
+        let mut v = vec![1.0, 2.0];
+        fill_outside(&mut v, &[false, false], [1, 2]);
+        assert_eq!(v, vec![1.0, 2.0]);
+    }
 
     #[test]
     fn keeps_large_values_constants_and_averages() {

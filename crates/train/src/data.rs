@@ -158,12 +158,11 @@ fn resize_plane(values: &[f32], side: usize, hw: [usize; 2]) -> Vec<f32> {
     sensor::resample::resize_plane(values, [side, side], hw)
 }
 
-/// Output pixels that lie wholly on useful crop pixels.
+/// Output pixels (half the input's resolution) that lie wholly on useful crop pixels.
 fn output_mask(sensor: &Sensor, [h, w]: [usize; 2]) -> Vec<f32> {
-    let full: Vec<f32> = sensor.valid_mask().iter().map(|&m| if m { 1.0 } else { 0.0 }).collect();
-    resize_plane(&full, sensor.crop_size_px as usize, [h / 2, w / 2])
+    sensor::resample::covered_mask(&sensor.valid_mask(), sensor.crop_size_px as usize, [h / 2, w / 2])
         .into_iter()
-        .map(|v| if v > 0.999 { 1.0 } else { 0.0 })
+        .map(|m| if m { 1.0 } else { 0.0 })
         .collect()
 }
 

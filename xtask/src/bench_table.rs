@@ -1,0 +1,349 @@
+//! `cargo xtask bench table`: run time against error. Every preset and input size is trained
+//! with the same budget on one dataset, exported, then timed and evaluated on each backend; the
+//! table, its Pareto front and a scatter go into BENCHMARKS.md and an SVG.
+//!
+//! Resumable: each configuration's bundle and each row are kept in the work folder, so a run
+//! that is stopped goes on where it was, and a GPU machine can add its rows to a CPU run's.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use burn::module::Module;
+use dataset::format::{GeneratorParams, Manifest};
+use dataset::generate::{generate_with_unit, report_lines};
+use dataset::{Kit, Split};
+use infer::Predictor;
+use infer::plot::{ScatterPoint, pareto_front, scatter_svg};
+use model::DenseDepthConfig;
+use serde::{Deserialize, Serialize};
+use train::training::{FitConfig, Schedule, Start, fit, preset};
+
+use crate::timing::once;
+
+/// The paper's point: DenseNet-161 at 640x480 on a GPU, test L1 over useful pixels.
+const PAPER: (&str, f64, f64) = ("paper: DenseNet-161, 640x480, GPU", 18.17, 0.281);
+const SECTION_START: &str = "<!-- bench-table: start (written by `cargo xtask bench table`) -->";
+const SECTION_END: &str = "<!-- bench-table: end -->";
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Presets, comma separated.
+    #[arg(long, value_delimiter = ',', default_value = "compact,densenet121,densenet161")]
+    presets: Vec<String>,
+    /// Square network input sides (px), comma separated.
+    #[arg(long, value_delimiter = ',', default_value = "64,128")]
+    sizes: Vec<usize>,
+    /// Backends to time and evaluate on (default: every one this build has).
+    #[arg(long, value_delimiter = ',')]
+    backends: Option<Vec<String>>,
+    /// Scenes in the shared dataset (embedded kit, simulated unit 7, one in ten lifted clear).
+    #[arg(long, default_value_t = 300)]
+    samples: u32,
+    /// The training budget, the same for every configuration: epochs over the training split.
+    #[arg(long, default_value_t = 2)]
+    epochs: usize,
+    #[arg(long, default_value_t = 4)]
+    batch: usize,
+    /// Timed frames per measurement (median).
+    #[arg(long, default_value_t = 10)]
+    reps: usize,
+    /// Work folder: dataset, one run and bundle per configuration, rows measured so far.
+    #[arg(long, default_value = "target/bench-table")]
+    work: PathBuf,
+    /// The Markdown file whose bench-table section is (re)written.
+    #[arg(long, default_value = "BENCHMARKS.md")]
+    markdown: PathBuf,
+    /// The scatter plot.
+    #[arg(long, default_value = "docs/bench-table.svg")]
+    svg: PathBuf,
+}
+
+/// One configuration on one backend.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct Row {
+    preset: String,
+    input_px: usize,
+    backend: String,
+    /// The machine the row was measured on.
+    machine: String,
+    params_m: f64,
+    train_min: f64,
+    network_ms: f64,
+    end_to_end_ms: f64,
+    test_l1_mm: f64,
+    test_contact_l1_mm: f64,
+    zero_l1_mm: f64,
+    zero_contact_l1_mm: f64,
+}
+
+impl Row {
+    fn key(&self) -> String {
+        format!("{}@{}/{}/{}", self.preset, self.input_px, self.backend, self.machine)
+    }
+    fn name(&self) -> String {
+        format!("{} {}px {}", self.preset, self.input_px, self.backend)
+    }
+}
+
+/// What training a configuration cost.
+#[derive(Serialize, Deserialize)]
+struct Trained {
+    train_s: f64,
+    params: usize,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    if args.presets.is_empty() || args.sizes.is_empty() || args.epochs == 0 {
+        bail!("need at least one preset, one size and one epoch");
+    }
+    let backends = args.backends.clone().unwrap_or_else(|| {
+        // wgpu is there when the build has it (`cargo xtask` builds with `model/wgpu`).
+        ["flex", "wgpu"].iter().filter(|b| model::backend::device(b).is_ok()).map(|b| b.to_string()).collect()
+    });
+    let devices: Vec<(String, burn::tensor::Device)> = backends
+        .iter()
+        .map(|b| Ok((b.clone(), model::backend::device(b).map_err(anyhow::Error::msg)?)))
+        .collect::<Result<_>>()?;
+    let machine = machine_name();
+    let data = args.work.join("dataset");
+    let kit = Kit::procedural(25.0);
+    let params = GeneratorParams { lifted_fraction: 0.1, ..GeneratorParams::new(0, args.samples, &kit.source) };
+    let report = generate_with_unit(&data, &kit, 7, 25.0, params).context("generating the shared dataset")?;
+    let scene_lines = report_lines(&report);
+    let manifest = Manifest::load(&data)?;
+    let frame = first_image(&data, &manifest, |s| s.stats.contact_fraction > 0.0)?;
+    let untouched = first_image(&data, &manifest, |s| s.stats.contact_fraction == 0.0).unwrap_or(frame.clone());
+
+    let rows_path = args.work.join("rows.json");
+    let mut rows: BTreeMap<String, Row> = match std::fs::read_to_string(&rows_path) {
+        Ok(text) => serde_json::from_str(&text).with_context(|| format!("{}: not rows JSON", rows_path.display()))?,
+        Err(_) => BTreeMap::new(),
+    };
+    let budget = format!("e{}-b{}-n{}", args.epochs, args.batch, args.samples);
+    for preset_name in &args.presets {
+        for &side in &args.sizes {
+            let run_dir = args.work.join("runs").join(format!("{preset_name}-{side}-{budget}"));
+            let bundle = run_dir.join("bundle");
+            let trained = train_once(&args, preset_name, side, &data, &run_dir, &bundle)?;
+            for (backend, device) in &devices {
+                let probe = Row {
+                    preset: preset_name.clone(),
+                    input_px: side,
+                    backend: backend.clone(),
+                    machine: machine.clone(),
+                    params_m: trained.params as f64 / 1e6,
+                    train_min: trained.train_s / 60.0,
+                    network_ms: f64::NAN,
+                    end_to_end_ms: f64::NAN,
+                    test_l1_mm: f64::NAN,
+                    test_contact_l1_mm: f64::NAN,
+                    zero_l1_mm: f64::NAN,
+                    zero_contact_l1_mm: f64::NAN,
+                };
+                if rows.contains_key(&probe.key()) {
+                    println!("{}: measured earlier", probe.name());
+                    continue;
+                }
+                println!("{}: timing and evaluating the test split", probe.name());
+                let predictor = Predictor::load(&bundle, device)?;
+                let times = infer::bench::time_frames(&predictor, &frame, &untouched, args.reps)?;
+                let eval_dir = run_dir.join(format!("eval-{backend}"));
+                let stats = infer::eval::evaluate_dataset(&predictor, &data, &["test"], &eval_dir)?;
+                let test = &stats["test"];
+                let row = Row {
+                    network_ms: times.network_ms,
+                    end_to_end_ms: times.end_to_end_ms,
+                    test_l1_mm: test.l1_mm.mean,
+                    test_contact_l1_mm: test.contact_l1_mm.mean,
+                    zero_l1_mm: test.zero_l1_mm.mean,
+                    zero_contact_l1_mm: test.zero_contact_l1_mm.mean,
+                    ..probe
+                };
+                rows.insert(row.key(), row);
+                sensor::io::write_atomic(&rows_path, serde_json::to_string_pretty(&rows)?.as_bytes())?;
+            }
+        }
+    }
+    let rows: Vec<Row> = rows.into_values().collect();
+    // Errors within 0.1 um are the same model on another backend's rounding.
+    let front = pareto_front(&rows.iter().map(|r| (r.network_ms, r.test_l1_mm)).collect::<Vec<_>>(), 1e-4);
+    let points: Vec<ScatterPoint> = rows
+        .iter()
+        .map(|r| ScatterPoint {
+            group: format!("{} ({})", r.backend, r.machine),
+            label: format!("{} {}", r.preset, r.input_px),
+            ms: r.network_ms,
+            l1_mm: r.test_l1_mm,
+        })
+        .collect();
+    let svg = scatter_svg(&points, &front, PAPER)?;
+    if let Some(dir) = args.svg.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    }
+    sensor::io::write_atomic(&args.svg, svg.as_bytes())?;
+    let section = section(&args, &rows, &front, &scene_lines, &manifest);
+    println!("\n{section}");
+    write_section(&args.markdown, &section)?;
+    println!("wrote {} and the section of {}", args.svg.display(), args.markdown.display());
+    Ok(())
+}
+
+/// Trains and exports one configuration unless its bundle is there; what it cost.
+fn train_once(args: &Args, preset_name: &str, side: usize, data: &Path, run_dir: &Path, bundle: &Path) -> Result<Trained> {
+    let cost_path = run_dir.join("trained.json");
+    if let Ok(text) = std::fs::read_to_string(&cost_path) {
+        if bundle.join("bundle.json").exists() {
+            return serde_json::from_str(&text).with_context(|| format!("{}: not JSON", cost_path.display()));
+        }
+    }
+    println!("training {preset_name} at {side}x{side}: {} epochs, batch {} (flex, CPU)", args.epochs, args.batch);
+    let config = FitConfig {
+        epochs: args.epochs,
+        batch: args.batch,
+        lr: 1e-3,
+        seed: 0,
+        checkpoint_every: 50,
+        net_range: model::UNIT_NET_RANGE,
+        schedule: Schedule::Cosine,
+        warmup_steps: 20,
+        val_fraction: 0.1,
+        ..FitConfig::new(data.to_path_buf(), [side, side])
+    };
+    let start = Start { model_config: DenseDepthConfig::new(preset(preset_name)?), weights: None };
+    let device = model::backend::default_device();
+    let (train_s, fitted) = once(|| fit(run_dir, &config, start, &device, true));
+    let fitted = fitted.with_context(|| format!("training {preset_name} at {side} (run again to resume)"))?;
+    train::export::export_net(&fitted.net, &fitted.state, bundle)?;
+    let trained = Trained { train_s, params: fitted.net.num_params() };
+    sensor::io::write_atomic(&cost_path, serde_json::to_string(&trained)?.as_bytes())?;
+    Ok(trained)
+}
+
+/// The encoded camera image of the first sample that `pick` accepts.
+fn first_image(data: &Path, manifest: &Manifest, pick: impl Fn(&dataset::format::SampleRecord) -> bool) -> Result<Vec<u8>> {
+    let s = manifest.samples.iter().find(|s| pick(s)).context("no such sample in the dataset")?;
+    let path = data.join(s.image.as_ref().context("the dataset has no images")?);
+    std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))
+}
+
+/// The CPU's model and thread count, and the GPU's name where `nvidia-smi` finds one.
+fn machine_name() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|t| t.lines().find(|l| l.starts_with("model name")).map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string()))
+        .unwrap_or_else(|| "unknown CPU".into());
+    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let gpu = std::process::Command::new("nvidia-smi")
+        .args(["--query-gpu=name", "--format=csv,noheader"])
+        .output()
+        .ok()
+        .filter(|o| o.status.success())
+        .and_then(|o| String::from_utf8(o.stdout).ok())
+        .and_then(|s| s.lines().next().map(|l| l.trim().to_string()));
+    match gpu {
+        Some(g) => format!("{g}, {threads} CPU threads"),
+        None => format!("{cpu}, {threads} threads, no GPU"),
+    }
+}
+
+fn section(args: &Args, rows: &[Row], front: &[usize], scene_lines: &[String], manifest: &Manifest) -> String {
+    let test_images = manifest.samples.iter().filter(|s| s.split == Split::Test).count();
+    let mut s = format!(
+        "{SECTION_START}\n## Run time against error (issue 7)\n\nCommand:\n\n```sh\ncargo xtask bench table --presets {} --sizes {} --samples {} --epochs {} --batch {} --reps {}\n```\n\n",
+        args.presets.join(","),
+        args.sizes.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(","),
+        args.samples,
+        args.epochs,
+        args.batch,
+        args.reps
+    );
+    s += &format!(
+        "One dataset for every row: {} scenes of the embedded kit, simulated unit 7, one in ten lifted clear \
+         of the sensor ({}). The same training budget for every configuration: {} epochs at batch {}, Adam \
+         peaking at 1e-3 after 20 warm-up steps with a cosine schedule, depth in 0.01..1 units, best epoch on \
+         10 % held out, trained with flex on the CPU (training minutes in the table). Each configuration is then \
+         timed and evaluated on each backend: network ms is the median over {} frames of input tensor to \
+         output read back; end to end adds PNG decode, the depth map on the 570x570 crop and the contact point \
+         cloud; the errors are means over the test split's {test_images} images of the per-image L1 over useful pixels \
+         and over true contact pixels, the contact gate in use, the zero predictor's beside them.\n\n",
+        args.samples,
+        scene_lines.get(1).map(|l| l.trim()).unwrap_or(""),
+        args.epochs,
+        args.batch,
+        args.reps,
+    );
+    s += "| preset | input | backend | machine | params (M) | train min | network ms | end-to-end ms | test L1 (mm) | contact L1 (mm) | zeros L1 | zeros contact L1 | Pareto |\n";
+    s += "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|\n";
+    for (i, r) in rows.iter().enumerate() {
+        s += &format!(
+            "| {} | {side}x{side} | {} | {} | {:.2} | {:.1} | {:.1} | {:.1} | {:.4} | {:.4} | {:.4} | {:.4} | {} |\n",
+            r.preset,
+            r.backend,
+            r.machine,
+            r.params_m,
+            r.train_min,
+            r.network_ms,
+            r.end_to_end_ms,
+            r.test_l1_mm,
+            r.test_contact_l1_mm,
+            r.zero_l1_mm,
+            r.zero_contact_l1_mm,
+            if front.contains(&i) { "front" } else { "" },
+            side = r.input_px
+        );
+    }
+    s += &format!(
+        "| DenseNet-161 (paper) | 640x480 | GPU | the paper's | | | {} | | {} | | | | reference |\n\n",
+        PAPER.1, PAPER.2
+    );
+    let names: Vec<String> = front.iter().map(|&i| rows[i].name()).collect();
+    s += &format!("Pareto front (network ms against test L1): {}.\n\n", names.join("; "));
+    let beats: Vec<String> = rows
+        .iter()
+        .filter(|r| r.network_ms < PAPER.1 && r.test_l1_mm < PAPER.2)
+        .map(|r| r.name())
+        .collect();
+    s += &format!(
+        "Faster and more accurate than the paper's point: {}.\n\n",
+        if beats.is_empty() { "none".to_string() } else { beats.join("; ") }
+    );
+    s += &format!("![run time against error]({})\n{SECTION_END}\n", args.svg.display());
+    s
+}
+
+/// Replaces the bench-table section of `path` (or appends one), atomically.
+fn write_section(path: &Path, section: &str) -> Result<()> {
+    let old = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => String::new(),
+        Err(e) => return Err(e).with_context(|| format!("{}: cannot read", path.display())),
+    };
+    let new = splice(&old, section).with_context(|| format!("{}", path.display()))?;
+    Ok(sensor::io::write_atomic(path, new.as_bytes())?)
+}
+
+fn splice(old: &str, section: &str) -> Result<String> {
+    match (old.find(SECTION_START), old.find(SECTION_END)) {
+        (Some(a), Some(b)) if a < b => Ok(format!("{}{}{}", &old[..a], section.trim_end(), &old[b + SECTION_END.len()..])),
+        (None, None) => Ok(format!("{}\n\n{}", old.trim_end(), section)),
+        _ => bail!("the bench-table markers are damaged; restore or remove both"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn section_is_replaced_in_place_and_appended_once() {
+        let section = |body: &str| format!("{SECTION_START}\n{body}\n{SECTION_END}\n");
+        let first = splice("# Benchmarks\n\nintro\n", &section("one")).unwrap();
+        assert!(first.starts_with("# Benchmarks\n\nintro\n\n") && first.contains("one"));
+        let doc = format!("{first}\n## Later section\n");
+        let second = splice(&doc, &section("two")).unwrap();
+        assert!(second.contains("two") && !second.contains("one") && second.ends_with("## Later section\n"));
+        assert_eq!(second.matches(SECTION_START).count(), 1);
+        assert!(splice(&format!("x {SECTION_END} y {SECTION_START}"), "z").is_err());
+    }
+}
