@@ -106,8 +106,9 @@ mod tests {
 
     #[test]
     fn covered_mask_keeps_pixels_wholly_inside() {
-        // A 4x4 mask with its right half true, halved: only the right column is wholly covered.
-        let mask: Vec<bool> = (0..16).map(|i| i % 4 >= 2).collect();
+        // A 4x4 mask false in its first column, halved: the triangle filter (two source pixels
+        // wide each way) reaches column 0 from the left output column only.
+        let mask: Vec<bool> = (0..16).map(|i| i % 4 >= 1).collect();
         assert_eq!(covered_mask(&mask, 4, [2, 2]), vec![false, true, false, true]);
     }
 
