@@ -77,12 +77,19 @@ struct Row {
     zero_contact_l1_mm: f64,
 }
 
+/// A row's key in `rows.json`: one per configuration, backend and machine.
+fn row_key(preset: &str, input_px: usize, backend: &str, machine: &str) -> String {
+    format!("{preset}@{input_px}/{backend}/{machine}")
+}
+
+/// How a row is named in messages and in the Pareto front's list.
+fn row_name(preset: &str, input_px: usize, backend: &str) -> String {
+    format!("{preset} {input_px}px {backend}")
+}
+
 impl Row {
-    fn key(&self) -> String {
-        format!("{}@{}/{}/{}", self.preset, self.input_px, self.backend, self.machine)
-    }
     fn name(&self) -> String {
-        format!("{} {}px {}", self.preset, self.input_px, self.backend)
+        row_name(&self.preset, self.input_px, &self.backend)
     }
 }
 
@@ -127,40 +134,33 @@ pub fn run(args: Args) -> Result<()> {
             let bundle = run_dir.join("bundle");
             let trained = train_once(&args, preset_name, side, &data, &run_dir, &bundle)?;
             for (backend, device) in &devices {
-                let probe = Row {
-                    preset: preset_name.clone(),
-                    input_px: side,
-                    backend: backend.clone(),
-                    machine: machine.clone(),
-                    params_m: trained.params as f64 / 1e6,
-                    train_min: trained.train_s / 60.0,
-                    network_ms: f64::NAN,
-                    end_to_end_ms: f64::NAN,
-                    test_l1_mm: f64::NAN,
-                    test_contact_l1_mm: f64::NAN,
-                    zero_l1_mm: f64::NAN,
-                    zero_contact_l1_mm: f64::NAN,
-                };
-                if rows.contains_key(&probe.key()) {
-                    println!("{}: measured earlier", probe.name());
+                let key = row_key(preset_name, side, backend, &machine);
+                let name = row_name(preset_name, side, backend);
+                if rows.contains_key(&key) {
+                    println!("{name}: measured earlier");
                     continue;
                 }
-                println!("{}: timing and evaluating the test split", probe.name());
+                println!("{name}: timing and evaluating the test split");
                 let predictor = Predictor::load(&bundle, device)?;
                 let times = infer::bench::time_frames(&predictor, &frame, &untouched, args.reps)?;
                 let eval_dir = run_dir.join(format!("eval-{backend}"));
                 let stats = infer::eval::evaluate_dataset(&predictor, &data, &["test"], &eval_dir)?;
                 let test = &stats["test"];
                 let row = Row {
+                    preset: preset_name.clone(),
+                    input_px: side,
+                    backend: backend.clone(),
+                    machine: machine.clone(),
+                    params_m: trained.params as f64 / 1e6,
+                    train_min: trained.train_s / 60.0,
                     network_ms: times.network_ms,
                     end_to_end_ms: times.end_to_end_ms,
                     test_l1_mm: test.l1_mm.mean,
                     test_contact_l1_mm: test.contact_l1_mm.mean,
                     zero_l1_mm: test.zero_l1_mm.mean,
                     zero_contact_l1_mm: test.zero_contact_l1_mm.mean,
-                    ..probe
                 };
-                rows.insert(row.key(), row);
+                rows.insert(key, row);
                 sensor::io::write_atomic(&rows_path, serde_json::to_string_pretty(&rows)?.as_bytes())?;
             }
         }

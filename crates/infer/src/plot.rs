@@ -159,7 +159,6 @@ pub fn scatter_svg(points: &[ScatterPoint], front: &[usize], reference: (&str, f
             .draw()
             .map_err(err)?;
         let mut groups: Vec<&str> = points.iter().map(|p| p.group.as_str()).collect();
-        groups.dedup();
         groups.sort();
         groups.dedup();
         for (g, name) in groups.iter().enumerate() {

@@ -46,9 +46,9 @@ pub struct Predictor {
     /// The useful pixels' rays, for point clouds.
     pub rays: Vec<sensor::PixelRay>,
     pub gate: ContactGate,
-    /// Output pixels the masked loss trained (wholly on useful pixels); the others are
-    /// unconstrained and are replaced by extrapolation before upsampling.
-    trained: Vec<bool>,
+    /// Replaces the output pixels the masked loss never trained (not wholly on useful pixels)
+    /// by extrapolation from the trained ones, before upsampling.
+    border_fill: sensor::resample::FillPlan,
 }
 
 impl Predictor {
@@ -83,6 +83,7 @@ impl Predictor {
         let rays = file.sensor.pixel_rays();
         let out_hw = [file.input_height_px / 2, file.input_width_px / 2];
         let trained = sensor::resample::covered_mask(&mask, file.sensor.crop_size_px as usize, out_hw);
+        let border_fill = sensor::resample::FillPlan::new(&trained, out_hw);
         Ok(Predictor {
             net: net.folded(),
             file,
@@ -91,7 +92,7 @@ impl Predictor {
             mask,
             rays,
             gate: ContactGate::default(),
-            trained,
+            border_fill,
         })
     }
 
@@ -173,8 +174,8 @@ impl Predictor {
                 let mut mm: Vec<f32> = plane.iter().map(|&v| scale.to_mm(v)).collect();
                 // Rim pixels of the crop interpolate between output pixels; the untrained ones
                 // outside the useful disk would leak into them (0.45 mm ghosts on untouched frames).
-                if self.trained.len() == mm.len() {
-                    sensor::resample::fill_outside(&mut mm, &self.trained, [oh, ow]);
+                if self.border_fill.len() == mm.len() {
+                    self.border_fill.apply(&mut mm);
                 }
                 // Not `image`'s resize: it clamps float pixels to [0, 1].
                 let full = sensor::resample::resize_plane(&mm, [oh, ow], [crop as usize, crop as usize]);

@@ -59,43 +59,67 @@ pub fn covered_mask(mask: &[bool], side: usize, [height, width]: [usize; 2]) -> 
     resize_plane(&full, [side, side], [height, width]).into_iter().map(|v| v > 0.999).collect()
 }
 
-/// Replaces the values of pixels outside `mask` with the mean of their already-known 8-neighbours,
-/// ring by ring outwards, so that resampling near the mask's edge mixes in only extrapolated
-/// values, never whatever lies outside (an untrained network's border, say). Pixels that no
-/// ring reaches (an empty mask) keep their values.
-pub fn fill_outside(values: &mut [f32], mask: &[bool], [height, width]: [usize; 2]) {
-    assert_eq!(values.len(), height * width, "plane size");
-    assert_eq!(mask.len(), height * width, "mask size");
-    let mut known = mask.to_vec();
-    loop {
-        let mut next = known.clone();
-        let mut changed = false;
-        for y in 0..height {
-            for x in 0..width {
-                let i = y * width + x;
-                if known[i] {
-                    continue;
-                }
-                let (mut sum, mut n) = (0f32, 0u32);
-                for ny in y.saturating_sub(1)..=(y + 1).min(height - 1) {
-                    for nx in x.saturating_sub(1)..=(x + 1).min(width - 1) {
-                        let j = ny * width + nx;
-                        if known[j] {
-                            sum += values[j];
-                            n += 1;
+/// Replaces the values of pixels outside a mask with the mean of their already-known
+/// 8-neighbours, ring by ring outwards, so that resampling near the mask's edge mixes in only
+/// extrapolated values, never whatever lies outside (an untrained network's border, say).
+/// Pixels that no ring reaches (an empty mask) keep their values. The rings depend on the mask
+/// alone, so they are worked out once and replayed on every plane.
+#[derive(Clone, Debug)]
+pub struct FillPlan {
+    len: usize,
+    /// In ring order: a pixel and the neighbours known before its ring.
+    steps: Vec<(usize, Vec<usize>)>,
+}
+
+impl FillPlan {
+    pub fn new(mask: &[bool], [height, width]: [usize; 2]) -> Self {
+        assert_eq!(mask.len(), height * width, "mask size");
+        let mut known = mask.to_vec();
+        let mut steps = Vec::new();
+        loop {
+            let ring_start = steps.len();
+            for y in 0..height {
+                for x in 0..width {
+                    let i = y * width + x;
+                    if known[i] {
+                        continue;
+                    }
+                    let mut from = Vec::new();
+                    for ny in y.saturating_sub(1)..=(y + 1).min(height - 1) {
+                        for nx in x.saturating_sub(1)..=(x + 1).min(width - 1) {
+                            if known[ny * width + nx] {
+                                from.push(ny * width + nx);
+                            }
                         }
                     }
-                }
-                if n > 0 {
-                    values[i] = sum / n as f32;
-                    next[i] = true;
-                    changed = true;
+                    if !from.is_empty() {
+                        steps.push((i, from));
+                    }
                 }
             }
+            if steps.len() == ring_start {
+                break;
+            }
+            for (i, _) in &steps[ring_start..] {
+                known[*i] = true;
+            }
         }
-        known = next;
-        if !changed {
-            break;
+        FillPlan { len: mask.len(), steps }
+    }
+
+    /// The number of pixels of the planes it fills.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    pub fn apply(&self, values: &mut [f32]) {
+        assert_eq!(values.len(), self.len, "plane size");
+        for (i, from) in &self.steps {
+            values[*i] = from.iter().map(|&j| values[j]).sum::<f32>() / from.len() as f32;
         }
     }
 }
@@ -113,20 +137,20 @@ mod tests {
     }
 
     #[test]
-    fn fill_outside_extends_the_known_values_ring_by_ring() {
+    fn fill_plan_extends_the_known_values_ring_by_ring() {
         // Known: the centre of a 5x5 grid (4.0); garbage elsewhere.
         let mut v = vec![100.0f32; 25];
         v[12] = 4.0;
         let mask: Vec<bool> = (0..25).map(|i| i == 12).collect();
-        fill_outside(&mut v, &mask, [5, 5]);
+        FillPlan::new(&mask, [5, 5]).apply(&mut v);
         assert!(v.iter().all(|&x| x == 4.0), "{v:?}");
         // Two known values: a pixel between them takes their mean; known pixels are untouched.
         let mut v = vec![9.0, -1.0, 3.0];
-        fill_outside(&mut v, &[true, false, true], [1, 3]);
+        FillPlan::new(&[true, false, true], [1, 3]).apply(&mut v);
         assert_eq!(v, vec![9.0, 6.0, 3.0]);
         // Nothing known: nothing changes.
         let mut v = vec![1.0, 2.0];
-        fill_outside(&mut v, &[false, false], [1, 2]);
+        FillPlan::new(&[false, false], [1, 2]).apply(&mut v);
         assert_eq!(v, vec![1.0, 2.0]);
     }
 
