@@ -190,12 +190,19 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 /// Trains and exports one configuration unless its bundle is there; what it cost.
-fn train_once(args: &Args, preset_name: &str, side: usize, data: &Path, run_dir: &Path, bundle: &Path) -> Result<Trained> {
+fn train_once(
+    args: &Args,
+    preset_name: &str,
+    side: usize,
+    data: &Path,
+    run_dir: &Path,
+    bundle: &Path,
+) -> Result<Trained> {
     let cost_path = run_dir.join("trained.json");
-    if let Ok(text) = std::fs::read_to_string(&cost_path) {
-        if bundle.join("bundle.json").exists() {
-            return serde_json::from_str(&text).with_context(|| format!("{}: not JSON", cost_path.display()));
-        }
+    if let Ok(text) = std::fs::read_to_string(&cost_path)
+        && bundle.join("bundle.json").exists()
+    {
+        return serde_json::from_str(&text).with_context(|| format!("{}: not JSON", cost_path.display()));
     }
     println!("training {preset_name} at {side}x{side}: {} epochs, batch {} (flex, CPU)", args.epochs, args.batch);
     let config = FitConfig {
@@ -221,7 +228,11 @@ fn train_once(args: &Args, preset_name: &str, side: usize, data: &Path, run_dir:
 }
 
 /// The encoded camera image of the first sample that `pick` accepts.
-fn first_image(data: &Path, manifest: &Manifest, pick: impl Fn(&dataset::format::SampleRecord) -> bool) -> Result<Vec<u8>> {
+fn first_image(
+    data: &Path,
+    manifest: &Manifest,
+    pick: impl Fn(&dataset::format::SampleRecord) -> bool,
+) -> Result<Vec<u8>> {
     let s = manifest.samples.iter().find(|s| pick(s)).context("no such sample in the dataset")?;
     let path = data.join(s.image.as_ref().context("the dataset has no images")?);
     std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))
@@ -231,7 +242,11 @@ fn first_image(data: &Path, manifest: &Manifest, pick: impl Fn(&dataset::format:
 fn machine_name() -> String {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
-        .and_then(|t| t.lines().find(|l| l.starts_with("model name")).map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string()))
+        .and_then(|t| {
+            t.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+        })
         .unwrap_or_else(|| "unknown CPU".into());
     let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let gpu = std::process::Command::new("nvidia-smi")
@@ -299,11 +314,8 @@ fn section(args: &Args, rows: &[Row], front: &[usize], scene_lines: &[String], m
     );
     let names: Vec<String> = front.iter().map(|&i| rows[i].name()).collect();
     s += &format!("Pareto front (network ms against test L1): {}.\n\n", names.join("; "));
-    let beats: Vec<String> = rows
-        .iter()
-        .filter(|r| r.network_ms < PAPER.1 && r.test_l1_mm < PAPER.2)
-        .map(|r| r.name())
-        .collect();
+    let beats: Vec<String> =
+        rows.iter().filter(|r| r.network_ms < PAPER.1 && r.test_l1_mm < PAPER.2).map(|r| r.name()).collect();
     s += &format!(
         "Faster and more accurate than the paper's point: {}.\n\n",
         if beats.is_empty() { "none".to_string() } else { beats.join("; ") }
@@ -325,7 +337,9 @@ fn write_section(path: &Path, section: &str) -> Result<()> {
 
 fn splice(old: &str, section: &str) -> Result<String> {
     match (old.find(SECTION_START), old.find(SECTION_END)) {
-        (Some(a), Some(b)) if a < b => Ok(format!("{}{}{}", &old[..a], section.trim_end(), &old[b + SECTION_END.len()..])),
+        (Some(a), Some(b)) if a < b => {
+            Ok(format!("{}{}{}", &old[..a], section.trim_end(), &old[b + SECTION_END.len()..]))
+        }
         (None, None) => Ok(format!("{}\n\n{}", old.trim_end(), section)),
         _ => bail!("the bench-table markers are damaged; restore or remove both"),
     }

@@ -92,7 +92,7 @@ pub fn run(args: Args) -> Result<()> {
     train::export::export_net(&fitted.net, &fitted.state, &bundle)?;
 
     println!("[4/5] evaluation of both splits: {}", eval_dir.display());
-    let predictor = Predictor::load(&bundle, &device)?;
+    let mut predictor = Predictor::load(&bundle, &device)?;
     let stats = infer::eval::evaluate_dataset(&predictor, &data, &["train", "test"], &eval_dir)?;
 
     println!("[5/5] examples: {}", examples.display());
@@ -100,7 +100,7 @@ pub fn run(args: Args) -> Result<()> {
     write_examples(&predictor, &data, &manifest, &examples, plan.examples)?;
     let frame_ms = time_one_frame(&predictor, &data, &manifest)?;
     let renderer = Renderer::for_crop(&SensorUnit::from_seed(args.unit, 25.0));
-    let untouched = untouched_frames(&predictor, &renderer, if args.smoke { 2 } else { 20 })?;
+    let untouched = untouched_frames(&mut predictor, &renderer, if args.smoke { 2 } else { 20 })?;
 
     check_outputs(out)?;
     print_summary(&stats, &scene_lines, frame_ms, &fitted.state, started.elapsed().as_secs_f64(), out);
@@ -160,35 +160,59 @@ fn time_one_frame(predictor: &Predictor, data: &Path, manifest: &Manifest) -> Re
 }
 
 /// Frames without contact (the unit's reference with fresh noise): how often the gate skips
-/// the network, what the network would have said, and the time saved.
-fn untouched_frames(predictor: &Predictor, renderer: &Renderer, count: u64) -> Result<String> {
+/// the network, what the network would have said (tared, as `predict` runs it, and untared), and
+/// the time saved.
+fn untouched_frames(predictor: &mut Predictor, renderer: &Renderer, count: u64) -> Result<String> {
     let zeros = vec![0f32; renderer.grid().len()];
-    let useful = predictor.mask.iter().filter(|&&m| m).count().max(1);
-    let (mut skipped, mut max_mm, mut above, mut gate_s, mut net_s) = (0, 0f32, 0usize, 0f64, 0f64);
-    for seed in 0..count {
-        let frame = renderer.render(&zeros, Some(1_000_000 + seed));
+    let frames: Vec<_> = (0..count).map(|seed| renderer.render(&zeros, Some(1_000_000 + seed))).collect();
+    let (mut skipped, mut gate_s) = (0, 0f64);
+    for frame in &frames {
         let t = Instant::now();
-        let (_, ran) = predictor.predict_gated(&frame)?;
-        let elapsed = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let net = predictor.predict_network(std::slice::from_ref(&frame))?.remove(0);
-        net_s += t.elapsed().as_secs_f64();
+        let (_, ran) = predictor.predict_gated(frame)?;
         if !ran {
             skipped += 1;
-            gate_s += elapsed;
+            gate_s += t.elapsed().as_secs_f64();
         }
-        max_mm = max_mm.max(net.max_mm());
-        above += net.depth_mm.iter().filter(|&&d| d > CONTACT_THRESHOLD_MM).count();
     }
-    let agree = if max_mm <= CONTACT_THRESHOLD_MM { "equal within" } else { "NOT equal within" };
+    let t = Instant::now();
+    let tared = NetworkOnQuiet::of(predictor, &frames)?;
+    let net_ms = 1e3 * t.elapsed().as_secs_f64() / count.max(1) as f64;
+    let reference = predictor.reference.clone();
+    predictor.set_tare(None)?;
+    let untared = NetworkOnQuiet::of(predictor, &frames)?;
+    predictor.set_tare(reference.as_ref())?;
+    let agree = if tared.max_mm <= CONTACT_THRESHOLD_MM { "equal within" } else { "NOT equal within" };
     Ok(format!(
         "frames without contact ({count}, rendered with noise): the gate skipped {skipped}, in {:.2} ms each against \
-         {:.1} ms for the network, whose depth on them peaks at {max_mm:.3} mm with {:.3} % of useful pixels above \
-         the {CONTACT_THRESHOLD_MM} mm contact threshold: gate and network {agree} the threshold",
+         {net_ms:.1} ms for the network, whose depth on them (tared on the reference image) peaks at {:.4} mm with \
+         {:.3} % of useful pixels above the {CONTACT_THRESHOLD_MM} mm contact threshold (untared: {:.4} mm, {:.3} %): \
+         gate and network {agree} the threshold",
         1e3 * gate_s / skipped.max(1) as f64,
-        1e3 * net_s / count.max(1) as f64,
-        100.0 * above as f64 / (useful as u64 * count).max(1) as f64
+        tared.max_mm,
+        tared.above_percent,
+        untared.max_mm,
+        untared.above_percent,
     ))
+}
+
+/// The network's depth on frames without contact: its peak, and the share of useful pixels it
+/// would call contact.
+struct NetworkOnQuiet {
+    max_mm: f32,
+    above_percent: f64,
+}
+
+impl NetworkOnQuiet {
+    fn of(predictor: &Predictor, frames: &[image::RgbImage]) -> Result<Self> {
+        let useful = predictor.mask.iter().filter(|&&m| m).count().max(1);
+        let (mut max_mm, mut above) = (0f32, 0usize);
+        for frame in frames {
+            let net = predictor.predict_network(std::slice::from_ref(frame))?.remove(0);
+            max_mm = max_mm.max(net.max_mm());
+            above += net.depth_mm.iter().filter(|&&d| d > CONTACT_THRESHOLD_MM).count();
+        }
+        Ok(NetworkOnQuiet { max_mm, above_percent: 100.0 * above as f64 / (useful * frames.len()).max(1) as f64 })
+    }
 }
 
 /// The outputs a user is pointed to exist and parse.

@@ -9,8 +9,8 @@ use rayon::prelude::*;
 use sensor::Sensor;
 
 use crate::format::{
-    DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, Manifest, SampleRecord, SplitSummary,
-    LIFTED_Z_TRAVEL_MM, read_json, sample_name, write_json,
+    DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, LIFTED_Z_TRAVEL_MM, Manifest, SampleRecord,
+    SplitSummary, read_json, sample_name, write_json,
 };
 use crate::kit::{Kit, Split, Trial};
 use crate::progress::Progress;

@@ -36,6 +36,9 @@ enum Command {
         /// Run the network even when the frame shows no contact.
         #[arg(long)]
         always: bool,
+        /// Keep the network's own reading of the reference frame (by default subtracted).
+        #[arg(long)]
+        no_tare: bool,
     },
     /// Per-image errors in mm over a dataset's split(s): stats.json, errors.csv, violin.svg.
     Eval {
@@ -49,6 +52,9 @@ enum Command {
         split: String,
         #[arg(long)]
         out: PathBuf,
+        /// Keep the network's own reading of the reference frame (by default subtracted).
+        #[arg(long)]
+        no_tare: bool,
     },
     /// Median milliseconds per frame (network alone, end to end, a frame without contact),
     /// beside the bundle's recorded test error.
@@ -101,13 +107,22 @@ fn bench(bundle: PathBuf, image: Option<PathBuf>, device: String, repeats: usize
     Ok(())
 }
 
-fn eval(bundle: PathBuf, data: PathBuf, split: String, out: PathBuf) -> Result<()> {
+/// Loads a bundle, tared on its reference image unless `no_tare`.
+fn load(bundle: &std::path::Path, device: &burn::tensor::Device, no_tare: bool) -> Result<Predictor> {
+    let mut predictor = Predictor::load(bundle, device)?;
+    if no_tare {
+        predictor.set_tare(None)?;
+    }
+    Ok(predictor)
+}
+
+fn eval(bundle: PathBuf, data: PathBuf, split: String, out: PathBuf, no_tare: bool) -> Result<()> {
     let splits: Vec<&str> = match split.as_str() {
         "all" => vec!["train", "test"],
         "train" | "test" => vec![split.as_str()],
         other => anyhow::bail!("--split must be train, test or all, got {other:?}"),
     };
-    let predictor = Predictor::load(&bundle, &model::backend::default_device())?;
+    let predictor = load(&bundle, &model::backend::default_device(), no_tare)?;
     infer::eval::evaluate_dataset(&predictor, &data, &splits, &out)?;
     println!("wrote {}/stats.json, errors.csv, violin.svg", out.display());
     Ok(())
@@ -120,9 +135,9 @@ fn predict(
     colour_out: Option<PathBuf>,
     ply: Option<PathBuf>,
     always: bool,
+    no_tare: bool,
 ) -> Result<()> {
-    let device = model::backend::default_device();
-    let predictor = Predictor::load(&bundle, &device)?;
+    let predictor = load(&bundle, &model::backend::default_device(), no_tare)?;
     let frame = image::open(&image).with_context(|| format!("{}: not a readable image", image.display()))?.to_rgb8();
     let start = Instant::now();
     let depth = if always {
@@ -159,10 +174,10 @@ fn predict(
 
 fn main() -> ExitCode {
     let result = match Cli::parse().command {
-        Command::Predict { bundle, image, depth_out, colour_out, ply, always } => {
-            predict(bundle, image, depth_out, colour_out, ply, always)
+        Command::Predict { bundle, image, depth_out, colour_out, ply, always, no_tare } => {
+            predict(bundle, image, depth_out, colour_out, ply, always, no_tare)
         }
-        Command::Eval { bundle, data, split, out } => eval(bundle, data, split, out),
+        Command::Eval { bundle, data, split, out, no_tare } => eval(bundle, data, split, out, no_tare),
         Command::Bench { bundle, image, device, repeats } => bench(bundle, image, device, repeats),
     };
     match result {

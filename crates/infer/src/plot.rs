@@ -207,9 +207,8 @@ fn label_at<'a, DB: DrawingBackend>(
 /// Indices of the (run time, error) points that no other point beats: no slower, and no worse
 /// by more than `error_tol` (errors closer than that, a backend's rounding say, count as equal).
 pub fn pareto_front(points: &[(f64, f64)], error_tol: f64) -> Vec<usize> {
-    let beats = |(t2, e2): (f64, f64), (t, e): (f64, f64)| {
-        t2 <= t && e2 <= e + error_tol && (t2 < t || e2 < e - error_tol)
-    };
+    let beats =
+        |(t2, e2): (f64, f64), (t, e): (f64, f64)| t2 <= t && e2 <= e + error_tol && (t2 < t || e2 < e - error_tol);
     (0..points.len())
         .filter(|&i| {
             let (t, e) = points[i];

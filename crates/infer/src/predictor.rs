@@ -49,6 +49,10 @@ pub struct Predictor {
     /// Replaces the output pixels the masked loss never trained (not wholly on useful pixels)
     /// by extrapolation from the trained ones, before upsampling.
     border_fill: sensor::resample::FillPlan,
+    /// The network's own depth on the reference frame (output grid, mm), subtracted from every
+    /// prediction, as a scale is tared: what the network reads into an untouched membrane is
+    /// its bias, not contact. `None` without a reference image or after [`Predictor::set_tare`]`(None)`.
+    tare_mm: Option<Vec<f32>>,
 }
 
 impl Predictor {
@@ -84,16 +88,38 @@ impl Predictor {
         let out_hw = [file.input_height_px / 2, file.input_width_px / 2];
         let trained = sensor::resample::covered_mask(&mask, file.sensor.crop_size_px as usize, out_hw);
         let border_fill = sensor::resample::FillPlan::new(&trained, out_hw);
-        Ok(Predictor {
+        let mut predictor = Predictor {
             net: net.folded(),
             file,
             device: device.clone(),
-            reference,
+            reference: None,
             mask,
             rays,
             gate: ContactGate::default(),
             border_fill,
-        })
+            tare_mm: None,
+        };
+        predictor.set_tare(reference.as_ref())?;
+        predictor.reference = reference;
+        Ok(predictor)
+    }
+
+    /// Takes `frame` (an untouched view of this unit, normally the reference image) as zero
+    /// depth from now on; `None` turns the tare off. One network pass.
+    pub fn set_tare(&mut self, frame: Option<&RgbImage>) -> Result<(), InferError> {
+        self.tare_mm = None;
+        if let Some(frame) = frame {
+            let out = self.net.forward(self.input(std::slice::from_ref(frame))?);
+            let values = out.into_data().try_to_vec::<f32>().expect("f32 output");
+            let scale = self.file.depth_scale;
+            self.tare_mm = Some(values.iter().map(|&v| scale.to_mm(v)).collect());
+        }
+        Ok(())
+    }
+
+    /// Whether predictions are tared (see [`set_tare`](Self::set_tare)).
+    pub fn is_tared(&self) -> bool {
+        self.tare_mm.is_some()
     }
 
     fn check(&self, frame: &RgbImage) -> Result<(), InferError> {
@@ -171,7 +197,10 @@ impl Predictor {
         values
             .chunks(oh * ow)
             .map(|plane| {
-                let mut mm: Vec<f32> = plane.iter().map(|&v| scale.to_mm(v)).collect();
+                let mut mm: Vec<f32> = match &self.tare_mm {
+                    Some(tare) => plane.iter().zip(tare).map(|(&v, &t)| scale.to_mm(v) - t).collect(),
+                    None => plane.iter().map(|&v| scale.to_mm(v)).collect(),
+                };
                 // Rim pixels of the crop interpolate between output pixels; the untrained ones
                 // outside the useful disk would leak into them (0.45 mm ghosts on untouched frames).
                 if self.border_fill.len() == mm.len() {

@@ -83,6 +83,32 @@ fn frames_without_contact_skip_the_network_and_others_run_it() {
 }
 
 #[test]
+fn the_tare_zeroes_the_reference_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    bundle(&dir);
+    let mut p = Predictor::load(&dir, &model::backend::default_device()).unwrap();
+    let reference = p.reference.clone().unwrap();
+    assert!(p.is_tared(), "a bundle with a reference image loads tared");
+    let tared = p.predict_network(std::slice::from_ref(&reference)).unwrap().remove(0);
+    assert!(tared.depth_mm.iter().all(|&v| v == 0.0), "tared, the reference itself reads zero");
+
+    // Taring on another frame moves the zero there; the two frames then read each other's
+    // difference, which cannot be zero both ways unless the tare does nothing.
+    let one = |p: &Predictor, f: &image::RgbImage| p.predict_network(std::slice::from_ref(f)).unwrap().remove(0);
+    let other = image::RgbImage::from_pixel(reference.width(), reference.height(), image::Rgb([128, 128, 128]));
+    let other_on_reference = one(&p, &other);
+    p.set_tare(Some(&other)).unwrap();
+    assert!(one(&p, &other).depth_mm.iter().all(|&v| v == 0.0));
+    let reference_on_other = one(&p, &reference);
+    assert!(other_on_reference.max_mm() > 0.0 || reference_on_other.max_mm() > 0.0, "the tare changed nothing");
+    p.set_tare(None).unwrap();
+    assert!(!p.is_tared());
+    let small = image::RgbImage::new(10, 10);
+    assert!(p.set_tare(Some(&small)).is_err(), "a tare frame of the wrong size is an error");
+}
+
+#[test]
 fn the_command_writes_depth_colour_and_a_point_cloud() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("bundle");
