@@ -211,7 +211,14 @@ mod tests {
         let other = DenseDepthConfig::new(DenseNetConfig::compact()).init(&device);
         other.save_file(dir.join(WEIGHTS_BURNPACK)).unwrap();
         let e = load_bundle(&dir, &device).unwrap_err().to_string();
-        assert!(e.contains("weights.bpk"), "{e}");
+        assert!(e.contains("weights.bpk") && e.contains("shape"), "{e}");
+        // One tensor left out of the file: named.
+        let mut store = burn::store::BurnpackStore::from_file(dir.join(WEIGHTS_BURNPACK))
+            .overwrite(true)
+            .with_filter(burn::store::PathFilter::new().with_predicate(|path, _| !path.ends_with("conv3.weight")));
+        model.save_into(&mut store).unwrap();
+        let e = load_bundle(&dir, &device).unwrap_err().to_string();
+        assert!(e.contains("weights.bpk") && e.contains("conv3.weight"), "{e}");
         // Missing weights.
         std::fs::remove_file(dir.join(WEIGHTS_BURNPACK)).unwrap();
         let e = load_bundle(&dir, &device).unwrap_err().to_string();
