@@ -29,21 +29,30 @@ pub fn run(args: Args) -> Result<()> {
     let rays = RayBundle::new(sensor);
     let params = GeneratorParams { unit: Some(args.unit), ..GeneratorParams::new(1, args.samples, &kit.source) };
     let dir = tempfile_dir()?;
-    let stages = ["ray cast", "render (shade, noise, 8-bit)", "RGB PNG encode", "depth PNG encode", "RGB PNG write"];
+    let stages = [
+        "scene (place the meshes)",
+        "ray caster build",
+        "ray cast",
+        "render (shade, noise, 8-bit)",
+        "RGB PNG encode",
+        "depth PNG encode",
+        "RGB PNG write",
+    ];
     let mut times: Vec<Vec<f64>> = vec![Vec::new(); stages.len()];
     let (mut shaded, mut bytes) = (0usize, 0usize);
     for id in 0..args.samples {
         let (trial, pose) = draw_sample(&kit, &params, id);
-        let scene = build_scene(&kit, trial, pose)?;
-        let (t_cast, (depth, _)) =
-            once(|| RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On).depth_map(sensor, &rays));
+        let (t_scene, scene) = once(|| build_scene(&kit, trial, pose));
+        let scene = scene?;
+        let (t_build, caster) = once(|| RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On));
+        let (t_cast, (depth, _)) = once(|| caster.depth_map(sensor, &rays));
         let (t_render, img) = once(|| renderer.render(&depth.depth_mm, Some(id as u64)));
         let (t_png, png) = once(|| encode_png_rgb(&img));
         let (t_depth_png, _) = once(|| depth.to_png_um());
         let path = dir.join(format!("{id}.png"));
         let (t_write, written) = once(|| sensor::io::write_atomic(&path, &png));
         written?;
-        for (v, t) in times.iter_mut().zip([t_cast, t_render, t_png, t_depth_png, t_write]) {
+        for (v, t) in times.iter_mut().zip([t_scene, t_build, t_cast, t_render, t_png, t_depth_png, t_write]) {
             v.push(t * 1e3);
         }
         shaded += depth.depth_mm.iter().filter(|&&d| d > 0.0).count();

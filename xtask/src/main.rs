@@ -47,6 +47,7 @@ enum Bench {
 }
 
 fn main() -> ExitCode {
+    sensor::alloc::keep_freed_memory();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Bench { what: Bench::Raycast(args) } => bench_raycast::run(args),

@@ -229,6 +229,7 @@ fn run_calibration(args: CalibrateArgs) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    sensor::alloc::keep_freed_memory();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Generate(args) => generate(args),

@@ -133,15 +133,27 @@ fn grid_scale(max_abs: f32) -> f32 {
 
 /// Whether any point of the triangle lies within `radius` of the origin: cheap answers where
 /// they are certain, the exact closest distance otherwise (with a 1 nm margin: dropping must be
-/// certain, keeping too much is harmless).
-fn may_reach(tri: [Vec3; 3], radius: f64) -> bool {
+/// certain, keeping too much is harmless). `len2` are the vertices' squared distances from the
+/// origin, worked out once per vertex since each is shared by about six triangles.
+fn may_reach(tri: [Vec3; 3], len2: [f32; 3], radius: f64) -> bool {
     let r = radius as f32;
-    if tri.iter().any(|v| v.length_squared() <= r * r * (1.0 - 1e-5)) {
+    if len2.iter().any(|&l2| l2 <= r * r * (1.0 - 1e-5)) {
         return true;
+    }
+    // Every point of the triangle is within its longest edge from each vertex, so a vertex
+    // farther out than that edge beyond the sphere rules the triangle out (no square root
+    // but the vertex's own).
+    let far = r * (1.0 + 1e-5);
+    for k in 0..3 {
+        let gap = len2[k].sqrt() - far;
+        let edge2 = tri[k].distance_squared(tri[(k + 1) % 3]).max(tri[k].distance_squared(tri[(k + 2) % 3]));
+        if gap > 0.0 && gap * gap > edge2 * 1.0002 {
+            return false;
+        }
     }
     let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
     let spread = tri.iter().map(|v| v.distance(centre)).fold(0.0, f32::max);
-    if centre.length() - spread * 1.0001 > r * (1.0 + 1e-5) {
+    if centre.length() - spread * 1.0001 > far {
         return false;
     }
     origin_distance(tri.map(Vec3::as_dvec3)) <= radius + 1e-6
@@ -447,15 +459,32 @@ impl RayCaster {
         for part in parts {
             triangles_total += part.triangles.len();
             let start = kept.len();
-            // Each vertex is shared by several triangles: snap it once.
+            // Each vertex is shared by several triangles: snap it (and measure it) once.
             let verts: Vec<Vec3> = part.vertices.par_iter().with_min_len(4096).map(|&v| snap(v)).collect();
-            kept.par_extend((0..part.triangles.len()).into_par_iter().with_min_len(1024).filter_map(|i| {
-                let tri = part.triangles[i].map(|k| verts[k as usize]);
-                (skipping == Skipping::Off || may_reach(tri, radius_mm)).then(|| (tri, near_bound(tri)))
+            let len2: Vec<f32> = verts.iter().map(|v| v.length_squared()).collect();
+            let reaching: Vec<u32> = (0..part.triangles.len() as u32)
+                .into_par_iter()
+                .with_min_len(1024)
+                .filter(|&i| {
+                    let ids = part.triangles[i as usize];
+                    skipping == Skipping::Off
+                        || may_reach(ids.map(|k| verts[k as usize]), ids.map(|k| len2[k as usize]), radius_mm)
+                })
+                .collect();
+            kept.par_extend(reaching.par_iter().with_min_len(1024).map(|&i| {
+                let tri = part.triangles[i as usize].map(|k| verts[k as usize]);
+                (tri, near_bound(tri))
             }));
             if skipping == Skipping::On && kept.len() > start {
-                let cone = Cone::around_directions(kept[start..].iter().flat_map(|k| k.0).map(Vec3A::from));
-                match (cone, cones.as_mut()) {
+                // The cone of the part's kept vertices, each counted once.
+                let mut used = vec![false; verts.len()];
+                for &i in &reaching {
+                    for k in part.triangles[i as usize] {
+                        used[k as usize] = true;
+                    }
+                }
+                let dirs = verts.iter().zip(&used).filter(|(_, u)| **u).map(|(&v, _)| Vec3A::from(v));
+                match (Cone::around_directions(dirs), cones.as_mut()) {
                     (Some(c), Some(list)) => list.push(c),
                     _ => cones = None,
                 }
@@ -744,6 +773,27 @@ mod tests {
             }
             let d = origin_distance(t);
             assert!(d <= best + 1e-12 && best - d < 1e-3, "{d} vs {best}");
+        }
+    }
+
+    proptest::proptest! {
+        /// Dropping a triangle is certain: whatever `may_reach` rules out lies beyond the
+        /// sphere, long slivers crossing it with every vertex outside included.
+        #[test]
+        fn dropped_triangles_lie_beyond_the_sphere(
+            a in proptest::array::uniform3(-60f32..60.0),
+            b in proptest::array::uniform3(-60f32..60.0),
+            c in proptest::array::uniform3(-3f32..3.0),
+            radius in 5f64..40.0,
+        ) {
+            // The third vertex near the middle of the first two: thin triangles across the sphere.
+            let (a, b) = (Vec3::from(a), Vec3::from(b));
+            let tri = [a, b, (a + b) * 0.5 + Vec3::from(c)];
+            let exact = origin_distance(tri.map(Vec3::as_dvec3));
+            let reaches = may_reach(tri, tri.map(|v| v.length_squared()), radius);
+            proptest::prop_assert!(reaches || exact > radius, "dropped at {exact} mm, radius {radius}");
+            // And it keeps only what comes close: no more than a margin beyond the sphere.
+            proptest::prop_assert!(!reaches || exact <= radius * (1.0 + 1e-3) + 1e-3 || tri.iter().any(|v| (v.length() as f64) < radius), "kept at {exact}");
         }
     }
 

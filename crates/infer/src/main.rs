@@ -173,6 +173,7 @@ fn predict(
 }
 
 fn main() -> ExitCode {
+    sensor::alloc::keep_freed_memory();
     let result = match Cli::parse().command {
         Command::Predict { bundle, image, depth_out, colour_out, ply, always, no_tare } => {
             predict(bundle, image, depth_out, colour_out, ply, always, no_tare)

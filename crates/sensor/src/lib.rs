@@ -5,6 +5,7 @@
 // `!(x > 0.0)` is used on purpose: unlike `x <= 0.0` it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod alloc;
 mod correspondence;
 mod depth;
 pub mod io;

@@ -246,6 +246,7 @@ fn report(state: &train::checkpoint::RunState) {
 }
 
 fn main() -> ExitCode {
+    sensor::alloc::keep_freed_memory();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Fit(args) => run_fit(args),
