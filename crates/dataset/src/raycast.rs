@@ -146,9 +146,11 @@ fn may_reach(tri: [Vec3; 3], len2: [f32; 3], radius: f64) -> bool {
     let far = r * (1.0 + 1e-5);
     for k in 0..3 {
         let gap = len2[k].sqrt() - far;
-        let edge2 = tri[k].distance_squared(tri[(k + 1) % 3]).max(tri[k].distance_squared(tri[(k + 2) % 3]));
-        if gap > 0.0 && gap * gap > edge2 * 1.0002 {
-            return false;
+        if gap > 0.0 {
+            let edge2 = tri[k].distance_squared(tri[(k + 1) % 3]).max(tri[k].distance_squared(tri[(k + 2) % 3]));
+            if gap * gap > edge2 * 1.0002 {
+                return false;
+            }
         }
     }
     let centre = (tri[0] + tri[1] + tri[2]) / 3.0;

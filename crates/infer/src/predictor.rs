@@ -107,13 +107,11 @@ impl Predictor {
     /// Takes `frame` (an untouched view of this unit, normally the reference image) as zero
     /// depth from now on; `None` turns the tare off. One network pass.
     pub fn set_tare(&mut self, frame: Option<&RgbImage>) -> Result<(), InferError> {
-        self.tare_mm = None;
-        if let Some(frame) = frame {
-            let out = self.net.forward(self.input(std::slice::from_ref(frame))?);
-            let values = out.into_data().try_to_vec::<f32>().expect("f32 output");
-            let scale = self.file.depth_scale;
-            self.tare_mm = Some(values.iter().map(|&v| scale.to_mm(v)).collect());
-        }
+        // Worked out before anything changes: a frame that fails leaves the tare as it was.
+        self.tare_mm = match frame {
+            Some(frame) => Some(self.output_mm(self.net.forward(self.input(std::slice::from_ref(frame))?))),
+            None => None,
+        };
         Ok(())
     }
 
@@ -190,29 +188,33 @@ impl Predictor {
     /// Network output to depth maps (mm) on the crop's grid, zero outside the useful disk.
     pub fn depth_maps(&self, out: Tensor<4>) -> Vec<DepthMap> {
         let [_, _, oh, ow] = out.dims();
-        let values: Vec<f32> = out.into_data().try_to_vec::<f32>().expect("f32 output");
-        let scale = self.file.depth_scale;
         let crop = self.file.sensor.crop_size_px;
         let max = self.file.sensor.max_depth_mm as f32;
-        values
-            .chunks(oh * ow)
-            .map(|plane| {
-                let mut mm: Vec<f32> = match &self.tare_mm {
-                    Some(tare) => plane.iter().zip(tare).map(|(&v, &t)| scale.to_mm(v) - t).collect(),
-                    None => plane.iter().map(|&v| scale.to_mm(v)).collect(),
-                };
+        self.output_mm(out)
+            .chunks_mut(oh * ow)
+            .map(|mm| {
+                if let Some(tare) = &self.tare_mm {
+                    mm.iter_mut().zip(tare).for_each(|(v, t)| *v -= t);
+                }
                 // Rim pixels of the crop interpolate between output pixels; the untrained ones
                 // outside the useful disk would leak into them (0.45 mm ghosts on untouched frames).
                 if self.border_fill.len() == mm.len() {
-                    self.border_fill.apply(&mut mm);
+                    self.border_fill.apply(mm);
                 }
                 // Not `image`'s resize: it clamps float pixels to [0, 1].
-                let full = sensor::resample::resize_plane(&mm, [oh, ow], [crop as usize, crop as usize]);
+                let full = sensor::resample::resize_plane(mm, [oh, ow], [crop as usize, crop as usize]);
                 let depth_mm =
                     full.iter().zip(&self.mask).map(|(&d, &m)| if m { d.clamp(0.0, max) } else { 0.0 }).collect();
                 DepthMap { size_px: crop, depth_mm }
             })
             .collect()
+    }
+
+    /// The network's output (network units) in millimetres, planes one after another.
+    fn output_mm(&self, out: Tensor<4>) -> Vec<f32> {
+        let scale = self.file.depth_scale;
+        let values: Vec<f32> = out.into_data().try_to_vec::<f32>().expect("f32 output");
+        values.into_iter().map(|v| scale.to_mm(v)).collect()
     }
 
     /// The contact patch (pixels deeper than `min_depth_mm`) as points, sensor frame, mm.

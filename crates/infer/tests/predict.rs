@@ -102,10 +102,12 @@ fn the_tare_zeroes_the_reference_frame() {
     assert!(one(&p, &other).depth_mm.iter().all(|&v| v == 0.0));
     let reference_on_other = one(&p, &reference);
     assert!(other_on_reference.max_mm() > 0.0 || reference_on_other.max_mm() > 0.0, "the tare changed nothing");
-    p.set_tare(None).unwrap();
-    assert!(!p.is_tared());
     let small = image::RgbImage::new(10, 10);
     assert!(p.set_tare(Some(&small)).is_err(), "a tare frame of the wrong size is an error");
+    assert!(p.is_tared(), "and leaves the tare as it was");
+    assert!(one(&p, &other).depth_mm.iter().all(|&v| v == 0.0), "still tared on the other frame");
+    p.set_tare(None).unwrap();
+    assert!(!p.is_tared());
 }
 
 #[test]
