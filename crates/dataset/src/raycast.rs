@@ -8,9 +8,12 @@
 //! is within its rounding bound of zero the sign is recomputed in integers. Exact signs are
 //! consistent between neighbouring triangles, so no ray leaks through a shared edge or vertex.
 //!
-//! Rays are cast a tile at a time: one walk of the BVH with the tile's bounding cone gathers
-//! the triangles any of its rays can reach, sorted by their distance from the centre; each ray
-//! then tests them in that order and stops once the next one lies beyond its nearest hit.
+//! Rays are cast a tile at a time, tiles a block at a time: a SIMD scan of every triangle's
+//! bounding ball against the block's cone, then of the survivors against all 64 tile cones at
+//! once, gathers the triangles any of a tile's rays can reach; sorted by their distance from the
+//! centre, each ray tests them in that order and stops once the next one lies beyond its nearest
+//! hit. No BVH is built (the scan costs less than building one); the single-ray reference path
+//! builds one on first use.
 //!
 //! Skipping (on by default) changes nothing in the result and is tested for that:
 //! - a triangle whose nearest point to the centre lies beyond the radius can never be the first
@@ -27,7 +30,7 @@ use rayon::prelude::*;
 use sensor::{DepthMap, Sensor};
 
 use crate::mesh::Mesh;
-use crate::rays::{BallView, Cone, RayBundle};
+use crate::rays::{BallView, BallViews, BlockCones, Cone, RayBundle};
 
 /// A triangle prepared for rays from the origin.
 #[derive(Clone, Copy, Debug)]
@@ -326,6 +329,10 @@ impl Lanes {
 /// and returns whether any lane was too close to an edge plane to tell.
 trait GroupKernel {
     fn test_group(lanes: &mut Lanes, g: usize, tri: &OriginTriangle) -> bool;
+    /// The tiles among `active` whose cones may meet `view` (`BlockCones::meeting`).
+    fn meeting(cones: &BlockCones, view: &BallView, active: u64) -> u64;
+    /// The balls `cone` may meet (`BallViews::meeting`).
+    fn scan(views: &BallViews, cone: &Cone, out: &mut Vec<u32>);
 }
 
 /// Plain Rust, for any CPU.
@@ -346,6 +353,16 @@ impl GroupKernel for Portable {
         }
         ambiguous
     }
+
+    #[inline(always)]
+    fn meeting(cones: &BlockCones, view: &BallView, active: u64) -> u64 {
+        cones.meeting(view, active)
+    }
+
+    #[inline(always)]
+    fn scan(views: &BallViews, cone: &Cone, out: &mut Vec<u32>) {
+        views.meeting(cone, out)
+    }
 }
 
 /// AVX2: the same arithmetic (multiplies then adds in `dot3`'s order, no fused multiply-add),
@@ -359,6 +376,18 @@ impl GroupKernel for Avx2 {
     fn test_group(lanes: &mut Lanes, g: usize, tri: &OriginTriangle) -> bool {
         // SAFETY: only instantiated inside `cast_block_avx2`, which runs after AVX2 was detected.
         unsafe { avx2_test_group(&lanes.x[g], &lanes.y[g], &lanes.z[g], &mut lanes.best[g], tri) }
+    }
+
+    #[inline(always)]
+    fn meeting(cones: &BlockCones, view: &BallView, active: u64) -> u64 {
+        // SAFETY: as above.
+        unsafe { cones.meeting_avx2(view, active) }
+    }
+
+    #[inline(always)]
+    fn scan(views: &BallViews, cone: &Cone, out: &mut Vec<u32>) {
+        // SAFETY: as above.
+        unsafe { views.meeting_avx2(cone, out) }
     }
 }
 
@@ -411,11 +440,32 @@ fn dot3(a: Vec3A, b: Vec3A) -> f32 {
     a.x * b.x + a.y * b.y + a.z * b.z
 }
 
+/// A triangle handed to a tile: its lower distance bound (made non-negative, so that its bits
+/// order as the number does) above its index, so that sorting plain integers orders candidates by
+/// distance.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+struct Candidate(u64);
+
+impl Candidate {
+    #[inline(always)]
+    fn new(near: f32, triangle: u32) -> Self {
+        // Adding zero turns -0 (whose sign bit would sort it last) into +0.
+        let near = near.max(0.0) + 0.0;
+        Candidate(((near.to_bits() as u64) << 32) | triangle as u64)
+    }
+
+    #[inline(always)]
+    fn parts(self) -> (f32, u32) {
+        (f32::from_bits((self.0 >> 32) as u32), self.0 as u32)
+    }
+}
+
 /// Buffers reused from block to block by one worker.
 #[derive(Default)]
 struct Scratch {
-    lists: Vec<Vec<(f32, u32)>>,
-    pool: Vec<Vec<u16>>,
+    lists: Vec<Vec<Candidate>>,
+    /// The triangles a block's cone may meet.
+    near_block: Vec<u32>,
     lanes: Vec<Lanes>,
 }
 
@@ -430,16 +480,22 @@ struct TriangleBounds {
 
 /// A scene's triangles, ready to cast the sensor's rays into.
 pub struct RayCaster {
-    bvh: Bvh2,
-    /// Triangles in BVH primitive order (no indirection in the hot loop).
     triangles: Vec<OriginTriangle>,
     bounds: Vec<TriangleBounds>,
-    /// Bounding balls of the BVH's nodes, as seen from the origin.
-    node_balls: Vec<BallView>,
+    /// The bounds' balls again, in the form a block's cone scans eight at a time.
+    views: BallViews,
+    /// The kept triangles' snapped corners, for the single-ray reference.
+    corners: Vec<[Vec3; 3]>,
+    /// A BVH over `corners`, built on the single-ray reference's first use: the tiled path
+    /// needs none, since a scan of every triangle's ball per block of rays costs less than
+    /// building one.
+    reference_bvh: std::sync::OnceLock<Bvh2>,
     cones: Option<Vec<Cone>>,
     radius_mm: f32,
     skipping: Skipping,
     triangles_total: usize,
+    /// How far the reference BVH's boxes are widened beyond rounding.
+    pad_mm: f32,
 }
 
 impl RayCaster {
@@ -495,42 +551,29 @@ impl RayCaster {
         if skipping == Skipping::Off {
             cones = None;
         }
-        let tris: Vec<Triangle> =
-            kept.iter().map(|(t, _)| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() }).collect();
-        let mut bvh = if tris.is_empty() {
-            Bvh2::default()
-        } else {
-            build_bvh2_from_tris(&tris, BvhBuildParams::fastest_build(), &mut Default::default())
-        };
-        // Pad the boxes: a ray lying exactly in a box's face plane (an axis-aligned ray through
-        // an edge on the axis) must not be rejected by the slab test's rounding.
-        let pad = Vec3A::splat(max_abs.max(1.0) * 1e-5);
-        for node in &mut bvh.nodes {
-            node.aabb.min -= pad;
-            node.aabb.max += pad;
-        }
-        let order: Vec<usize> = bvh.primitive_indices.iter().map(|&i| i as usize).collect();
-        let triangles = order.par_iter().with_min_len(1024).map(|&i| OriginTriangle::new(kept[i].0, scale)).collect();
-        let bounds = order
+        let triangles = kept.par_iter().with_min_len(1024).map(|(t, _)| OriginTriangle::new(*t, scale)).collect();
+        let bounds: Vec<TriangleBounds> = kept
             .par_iter()
             .with_min_len(1024)
-            .map(|&i| {
-                let [a, b, c] = kept[i].0.map(Vec3A::from);
+            .map(|&(t, near)| {
+                let [a, b, c] = t.map(Vec3A::from);
                 let centre = (a + b + c) / 3.0;
                 let radius = centre.distance(a).max(centre.distance(b)).max(centre.distance(c)) * 1.0001 + 1e-6;
-                TriangleBounds { ball: BallView::new(centre, radius), near: kept[i].1 }
+                TriangleBounds { ball: BallView::new(centre, radius), near }
             })
             .collect();
-        let node_balls = bvh
-            .nodes
-            .par_iter()
-            .with_min_len(1024)
-            .map(|node| {
-                let (lo, hi) = (node.aabb.min, node.aabb.max);
-                BallView::new((lo + hi) * 0.5, (hi - lo).length() * 0.5)
-            })
-            .collect();
-        RayCaster { bvh, triangles, bounds, node_balls, cones, radius_mm: radius_mm as f32, skipping, triangles_total }
+        RayCaster {
+            triangles,
+            views: BallViews::new(bounds.iter().map(|b| b.ball)),
+            bounds,
+            corners: kept.into_iter().map(|(t, _)| t).collect(),
+            reference_bvh: std::sync::OnceLock::new(),
+            cones,
+            radius_mm: radius_mm as f32,
+            skipping,
+            triangles_total,
+            pad_mm: max_abs.max(1.0) * 1e-5,
+        }
     }
 
     pub fn triangles_kept(&self) -> usize {
@@ -547,11 +590,23 @@ impl RayCaster {
         if self.triangles.is_empty() {
             return f32::INFINITY;
         }
+        let bvh = self.reference_bvh.get_or_init(|| {
+            let tris: Vec<Triangle> =
+                self.corners.iter().map(|t| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() }).collect();
+            let mut bvh = build_bvh2_from_tris(&tris, BvhBuildParams::fastest_build(), &mut Default::default());
+            // Pad the boxes: a ray lying exactly in a box's face plane (an axis-aligned ray
+            // through an edge on the axis) must not be rejected by the slab test's rounding.
+            for node in &mut bvh.nodes {
+                node.aabb.min -= Vec3A::splat(self.pad_mm);
+                node.aabb.max += Vec3A::splat(self.pad_mm);
+            }
+            bvh
+        });
         let dir = snap_direction(dir);
         let ray = Ray::new(Vec3A::ZERO, dir, 0.0, self.t_max());
         let mut hit = RayHit::none();
-        let tris = &self.triangles;
-        self.bvh.ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(dir, r.tmax));
+        let (tris, order) = (&self.triangles, &bvh.primitive_indices);
+        bvh.ray_traverse(ray, &mut hit, |r, id| tris[order[id] as usize].intersect(dir, r.tmax));
         if hit.t < self.t_max() { hit.t } else { f32::INFINITY }
     }
 
@@ -562,38 +617,32 @@ impl RayCaster {
         }
     }
 
-    /// Walks the BVH once for a block of tiles: each node is tested against the cones of the
-    /// tiles that reached its parent, and each leaf's triangles are handed to the tiles whose
-    /// cones may meet them. `lists[k]` receives tile `k`'s candidates.
-    fn gather(
+    /// Hands each triangle that a block's rays may reach to the block's tiles whose cones may
+    /// meet it (bit `k` of `active`: tile `k`): one SIMD scan of every triangle's ball against
+    /// the block's cone, then the few that pass against the tiles' cones, 64 at once.
+    /// `lists[k]` receives tile `k`'s candidates.
+    #[inline(always)]
+    fn gather<K: GroupKernel>(
         &self,
-        node: usize,
-        active: &[u16],
-        cones: &[&Cone],
-        lists: &mut [Vec<(f32, u32)>],
-        pool: &mut Vec<Vec<u16>>,
+        block_cone: Option<&Cone>,
+        active: u64,
+        cones: &BlockCones,
+        lists: &mut [Vec<Candidate>],
+        near_block: &mut Vec<u32>,
     ) {
-        let ball = &self.node_balls[node];
-        let mut survivors = pool.pop().unwrap_or_default();
-        survivors.clear();
-        survivors.extend(active.iter().copied().filter(|&k| cones[k as usize].may_meet(ball)));
-        if !survivors.is_empty() {
-            let n = &self.bvh.nodes[node];
-            if n.prim_count == 0 {
-                self.gather(n.first_index as usize, &survivors, cones, lists, pool);
-                self.gather(n.first_index as usize + 1, &survivors, cones, lists, pool);
-            } else {
-                for t in n.first_index..n.first_index + n.prim_count {
-                    let b = &self.bounds[t as usize];
-                    for &k in &survivors {
-                        if cones[k as usize].may_meet(&b.ball) {
-                            lists[k as usize].push((b.near, t));
-                        }
-                    }
-                }
+        near_block.clear();
+        match block_cone {
+            Some(cone) => K::scan(&self.views, cone, near_block),
+            None => near_block.extend(0..self.triangles.len() as u32),
+        }
+        for &t in near_block.iter() {
+            let b = &self.bounds[t as usize];
+            let mut meets = K::meeting(cones, &b.ball, active);
+            while meets != 0 {
+                lists[meets.trailing_zeros() as usize].push(Candidate::new(b.near, t));
+                meets &= meets - 1;
             }
         }
-        pool.push(survivors);
     }
 
     /// Casts a block of tiles (ranges into `rays`); returns how many rays were cast. Uses 8-wide
@@ -602,6 +651,7 @@ impl RayCaster {
         &self,
         rays: &RayBundle,
         tiles: &[(std::ops::Range<usize>, Cone)],
+        block_cone: Option<&Cone>,
         hits: &mut [f32],
         scratch: &mut Scratch,
         simd: bool,
@@ -609,9 +659,9 @@ impl RayCaster {
         #[cfg(target_arch = "x86_64")]
         if simd && std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2, checked just above.
-            return unsafe { self.cast_block_avx2(rays, tiles, hits, scratch) };
+            return unsafe { self.cast_block_avx2(rays, tiles, block_cone, hits, scratch) };
         }
-        self.cast_block_with::<Portable>(rays, tiles, hits, scratch)
+        self.cast_block_with::<Portable>(rays, tiles, block_cone, hits, scratch)
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -620,10 +670,11 @@ impl RayCaster {
         &self,
         rays: &RayBundle,
         tiles: &[(std::ops::Range<usize>, Cone)],
+        block_cone: Option<&Cone>,
         hits: &mut [f32],
         scratch: &mut Scratch,
     ) -> usize {
-        self.cast_block_with::<Avx2>(rays, tiles, hits, scratch)
+        self.cast_block_with::<Avx2>(rays, tiles, block_cone, hits, scratch)
     }
 
     #[inline(always)]
@@ -631,15 +682,16 @@ impl RayCaster {
         &self,
         rays: &RayBundle,
         tiles: &[(std::ops::Range<usize>, Cone)],
+        block_cone: Option<&Cone>,
         hits: &mut [f32],
         scratch: &mut Scratch,
     ) -> usize {
         let t_max = self.t_max();
         let first = tiles[0].0.start;
-        let Scratch { lists, pool, lanes } = scratch;
+        let Scratch { lists, near_block, lanes } = scratch;
         lists.resize_with(tiles.len(), Vec::new);
         lanes.clear();
-        let mut active: Vec<u16> = Vec::with_capacity(tiles.len());
+        let mut active = 0u64;
         for (k, (range, cone)) in tiles.iter().enumerate() {
             lists[k].clear();
             let reachable = match &self.cones {
@@ -648,21 +700,25 @@ impl RayCaster {
             };
             let l = Lanes::new(&rays.dirs[range.clone()], |d| reachable && self.wanted(d), t_max);
             if l.wanted > 0 {
-                active.push(k as u16);
+                active |= 1 << k;
             }
             lanes.push(l);
         }
-        if active.is_empty() || self.triangles.is_empty() {
+        if active == 0 || self.triangles.is_empty() {
             return 0;
         }
-        let cones: Vec<&Cone> = tiles.iter().map(|t| &t.1).collect();
-        self.gather(0, &active, &cones, lists, pool);
+        let cones = BlockCones::new(tiles.iter().map(|t| &t.1));
+        self.gather::<K>(block_cone, active, &cones, lists, near_block);
         let mut cast = 0;
-        for &k in &active {
-            let (list, l) = (&mut lists[k as usize], &mut lanes[k as usize]);
-            list.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let mut pending = active;
+        while pending != 0 {
+            let k = pending.trailing_zeros() as usize;
+            pending &= pending - 1;
+            let (list, l) = (&mut lists[k], &mut lanes[k]);
+            list.sort_unstable();
             let mut reach = t_max;
-            for &(near, t) in list.iter() {
+            for &c in list.iter() {
+                let (near, t) = c.parts();
                 // Candidates come nearest first: once one starts beyond every ray's nearest hit,
                 // so do all the rest.
                 if near > reach {
@@ -674,7 +730,7 @@ impl RayCaster {
                 }
                 reach = l.reach();
             }
-            let range = &tiles[k as usize].0;
+            let range = &tiles[k].0;
             for (i, hit) in hits[range.start - first..range.end - first].iter_mut().enumerate() {
                 let best = l.best(i);
                 if best >= 0.0 && best < t_max {
@@ -698,16 +754,18 @@ impl RayCaster {
         // Blocks are contiguous ranges of rays: hand each worker whole blocks.
         let mut work = Vec::with_capacity(rays.blocks.len());
         let mut rest = hits.as_mut_slice();
-        for block in &rays.blocks {
+        for (block, cone) in rays.blocks.iter().zip(&rays.block_cones) {
             let tiles = &rays.tiles[block.clone()];
             let len = tiles.last().unwrap().0.end - tiles[0].0.start;
             let (head, tail) = rest.split_at_mut(len);
-            work.push((tiles, head));
+            work.push((tiles, cone.as_ref(), head));
             rest = tail;
         }
         let cast: usize = work
             .into_par_iter()
-            .map_init(Scratch::default, |scratch, (tiles, out)| self.cast_block(rays, tiles, out, scratch, simd))
+            .map_init(Scratch::default, |scratch, (tiles, cone, out)| {
+                self.cast_block(rays, tiles, cone, out, scratch, simd)
+            })
             .sum();
         (hits, cast)
     }

@@ -50,7 +50,9 @@ impl Cone {
         // The ball spans beta about its direction: it meets the cone if that direction is
         // within alpha + beta (< 180 degrees) of the axis.
         let cos_sum = self.cos_half_angle * view.cos_b - self.sin_half_angle * view.sin_b;
-        view.dir.dot(self.axis) >= cos_sum - 1e-5
+        // Summed in this order, as the batched forms below do, so that they agree bit for bit.
+        let dot = view.dir.x * self.axis.x + view.dir.y * self.axis.y + view.dir.z * self.axis.z;
+        dot >= cos_sum - 1e-5
     }
 
     /// Whether the cone may meet the ball of `radius` about `centre` (conservative).
@@ -92,6 +94,169 @@ impl BallView {
     }
 }
 
+/// Many balls' views in structure-of-arrays form, so that one cone is tested against eight of
+/// them per instruction (`Cone::may_meet`'s test).
+#[derive(Clone, Debug, Default)]
+pub struct BallViews {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+    cos: Vec<f32>,
+    sin: Vec<f32>,
+}
+
+impl BallViews {
+    pub fn new(views: impl Iterator<Item = BallView>) -> Self {
+        let mut b = BallViews::default();
+        for v in views {
+            b.x.push(v.dir.x);
+            b.y.push(v.dir.y);
+            b.z.push(v.dir.z);
+            b.cos.push(v.cos_b);
+            b.sin.push(v.sin_b);
+        }
+        b
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Appends to `out` the index of every ball that `cone` may meet, in order.
+    #[inline(always)]
+    pub fn meeting(&self, cone: &Cone, out: &mut Vec<u32>) {
+        let (a, ca, sa) = (cone.axis, cone.cos_half_angle, cone.sin_half_angle);
+        for i in 0..self.len() {
+            let cos_sum = ca * self.cos[i] - sa * self.sin[i];
+            let dot = self.x[i] * a.x + self.y[i] * a.y + self.z[i] * a.z;
+            if dot >= cos_sum - 1e-5 {
+                out.push(i as u32);
+            }
+        }
+    }
+
+    /// `meeting` with AVX2 intrinsics.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub unsafe fn meeting_avx2(&self, cone: &Cone, out: &mut Vec<u32>) {
+        use std::arch::x86_64::*;
+        let a = cone.axis;
+        let (ax, ay, az) = (_mm256_set1_ps(a.x), _mm256_set1_ps(a.y), _mm256_set1_ps(a.z));
+        let (ca, sa, eps) =
+            (_mm256_set1_ps(cone.cos_half_angle), _mm256_set1_ps(cone.sin_half_angle), _mm256_set1_ps(1e-5));
+        let whole = self.len() / 8 * 8;
+        for g in (0..whole).step_by(8) {
+            // SAFETY: g + 8 <= len for every array; unaligned loads.
+            let load = |v: &Vec<f32>| unsafe { _mm256_loadu_ps(v.as_ptr().add(g)) };
+            let cos_sum = _mm256_sub_ps(_mm256_mul_ps(ca, load(&self.cos)), _mm256_mul_ps(sa, load(&self.sin)));
+            let dot = _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(load(&self.x), ax), _mm256_mul_ps(load(&self.y), ay)),
+                _mm256_mul_ps(load(&self.z), az),
+            );
+            let mut bits = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(dot, _mm256_sub_ps(cos_sum, eps))) as u32;
+            while bits != 0 {
+                out.push(g as u32 + bits.trailing_zeros());
+                bits &= bits - 1;
+            }
+        }
+        for i in whole..self.len() {
+            let cos_sum = cone.cos_half_angle * self.cos[i] - cone.sin_half_angle * self.sin[i];
+            let dot = self.x[i] * a.x + self.y[i] * a.y + self.z[i] * a.z;
+            if dot >= cos_sum - 1e-5 {
+                out.push(i as u32);
+            }
+        }
+    }
+}
+
+/// Most tiles a block may hold: one bit each in a `u64` mask.
+pub const BLOCK_MAX_TILES: usize = 64;
+
+/// The cones of one block's tiles in structure-of-arrays form: a ball is tested against all of
+/// them at once, eight lanes per instruction, and the answer is a bit mask of the tiles that
+/// may meet it. The test is `Cone::may_meet`'s.
+pub struct BlockCones {
+    x: [f32; BLOCK_MAX_TILES],
+    y: [f32; BLOCK_MAX_TILES],
+    z: [f32; BLOCK_MAX_TILES],
+    cos: [f32; BLOCK_MAX_TILES],
+    sin: [f32; BLOCK_MAX_TILES],
+}
+
+impl BlockCones {
+    /// At most `BLOCK_MAX_TILES` cones; lanes beyond them hold zeros (and are masked off by
+    /// the callers' `active` bits).
+    pub fn new<'a>(cones: impl ExactSizeIterator<Item = &'a Cone>) -> Self {
+        assert!(cones.len() <= BLOCK_MAX_TILES, "a block holds at most {BLOCK_MAX_TILES} tiles");
+        let mut b = BlockCones {
+            x: [0.0; BLOCK_MAX_TILES],
+            y: [0.0; BLOCK_MAX_TILES],
+            z: [0.0; BLOCK_MAX_TILES],
+            cos: [0.0; BLOCK_MAX_TILES],
+            sin: [0.0; BLOCK_MAX_TILES],
+        };
+        for (k, c) in cones.enumerate() {
+            (b.x[k], b.y[k], b.z[k]) = (c.axis.x, c.axis.y, c.axis.z);
+            (b.cos[k], b.sin[k]) = (c.cos_half_angle, c.sin_half_angle);
+        }
+        b
+    }
+
+    /// The tiles among `active` whose cones may meet `view`.
+    #[inline(always)]
+    pub fn meeting(&self, view: &BallView, active: u64) -> u64 {
+        let mut mask = 0;
+        for g in (0..BLOCK_MAX_TILES).step_by(8) {
+            if (active >> g) & 0xff == 0 {
+                continue;
+            }
+            for k in g..g + 8 {
+                let cos_sum = self.cos[k] * view.cos_b - self.sin[k] * view.sin_b;
+                let dot = view.dir.x * self.x[k] + view.dir.y * self.y[k] + view.dir.z * self.z[k];
+                mask |= ((dot >= cos_sum - 1e-5) as u64) << k;
+            }
+        }
+        mask & active
+    }
+
+    /// `meeting` with AVX2 intrinsics.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub unsafe fn meeting_avx2(&self, view: &BallView, active: u64) -> u64 {
+        use std::arch::x86_64::*;
+        let (dx, dy, dz) = (_mm256_set1_ps(view.dir.x), _mm256_set1_ps(view.dir.y), _mm256_set1_ps(view.dir.z));
+        let (cb, sb, eps) = (_mm256_set1_ps(view.cos_b), _mm256_set1_ps(view.sin_b), _mm256_set1_ps(1e-5));
+        let mut mask = 0;
+        for g in (0..BLOCK_MAX_TILES).step_by(8) {
+            if (active >> g) & 0xff == 0 {
+                continue;
+            }
+            // SAFETY: g + 8 <= BLOCK_MAX_TILES; unaligned loads.
+            let load = |a: &[f32; BLOCK_MAX_TILES]| unsafe { _mm256_loadu_ps(a.as_ptr().add(g)) };
+            let cos_sum = _mm256_sub_ps(_mm256_mul_ps(load(&self.cos), cb), _mm256_mul_ps(load(&self.sin), sb));
+            let dot = _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(dx, load(&self.x)), _mm256_mul_ps(dy, load(&self.y))),
+                _mm256_mul_ps(dz, load(&self.z)),
+            );
+            let meets = _mm256_cmp_ps::<_CMP_GE_OQ>(dot, _mm256_sub_ps(cos_sum, eps));
+            mask |= (_mm256_movemask_ps(meets) as u32 as u64) << g;
+        }
+        mask & active
+    }
+}
+
 /// One ray per useful pixel, ordered tile by tile.
 #[derive(Clone, Debug)]
 pub struct RayBundle {
@@ -102,6 +267,8 @@ pub struct RayBundle {
     pub tiles: Vec<(std::ops::Range<usize>, Cone)>,
     /// Blocks of neighbouring tiles (ranges in `tiles`), cast together.
     pub blocks: Vec<std::ops::Range<usize>>,
+    /// Each block's bounding cone (`None` where one would reach 90 degrees).
+    pub block_cones: Vec<Option<Cone>>,
 }
 
 impl RayBundle {
@@ -136,7 +303,11 @@ impl RayBundle {
             tiles.push((start..end, cone));
             start = end;
         }
-        RayBundle { dirs, indices: rays.iter().map(|r| r.index).collect(), tiles, blocks }
+        let block_cones = blocks
+            .iter()
+            .map(|b| Cone::around_directions(dirs[tiles[b.start].0.start..tiles[b.end - 1].0.end].iter().copied()))
+            .collect();
+        RayBundle { dirs, indices: rays.iter().map(|r| r.index).collect(), tiles, blocks, block_cones }
     }
 
     pub fn len(&self) -> usize {
@@ -168,10 +339,61 @@ mod tests {
         let mut next = 0;
         for b in &rays.blocks {
             assert_eq!(b.start, next);
-            assert!(b.len() <= 64);
+            assert!(b.len() <= BLOCK_MAX_TILES);
             next = b.end;
         }
         assert_eq!(next, rays.tiles.len());
+        for (b, cone) in rays.blocks.iter().zip(&rays.block_cones) {
+            let cone = cone.expect("a block spans less than 90 degrees");
+            let dirs = &rays.dirs[rays.tiles[b.start].0.start..rays.tiles[b.end - 1].0.end];
+            assert!(dirs.iter().all(|&d| cone.contains(d)));
+        }
+    }
+
+    /// The SIMD tests of many balls against one cone, and of one ball against a block's cones,
+    /// answer exactly as `Cone::may_meet` does, one pair at a time.
+    #[test]
+    fn batched_cone_tests_agree_with_single_ones() {
+        let mut rng = crate::rng::SplitMix64::new(11);
+        let mut dir = || Vec3A::new(rng.normal() as f32, rng.normal() as f32, rng.normal() as f32).normalize();
+        let mut cones = Vec::new();
+        while cones.len() < BLOCK_MAX_TILES {
+            let axis = dir();
+            let spread: Vec<Vec3A> = (0..4).map(|_| (axis * 3.0 + dir()).normalize()).collect();
+            cones.extend(Cone::around_directions(spread.into_iter()));
+        }
+        let balls: Vec<BallView> =
+            (0..203).map(|i| BallView::new(dir() * (1.0 + i as f32 * 0.1), 0.05 + (i % 7) as f32 * 0.3)).collect();
+        let views = BallViews::new(balls.iter().copied());
+        let block = BlockCones::new(cones.iter());
+        let active = 0xf0f0_ffff_0000_ff0f_u64;
+        for cone in &cones {
+            let want: Vec<u32> = (0..balls.len() as u32).filter(|&i| cone.may_meet(&balls[i as usize])).collect();
+            let mut got = Vec::new();
+            views.meeting(cone, &mut got);
+            assert_eq!(got, want);
+            #[cfg(target_arch = "x86_64")]
+            if std::is_x86_feature_detected!("avx2") {
+                got.clear();
+                // SAFETY: AVX2 was detected just above.
+                unsafe { views.meeting_avx2(cone, &mut got) };
+                assert_eq!(got, want);
+            }
+        }
+        let mut met = 0;
+        for ball in &balls {
+            let want = (0..BLOCK_MAX_TILES)
+                .filter(|&k| active >> k & 1 == 1 && cones[k].may_meet(ball))
+                .fold(0u64, |m, k| m | 1 << k);
+            assert_eq!(block.meeting(ball, active), want);
+            #[cfg(target_arch = "x86_64")]
+            if std::is_x86_feature_detected!("avx2") {
+                // SAFETY: AVX2 was detected just above.
+                assert_eq!(unsafe { block.meeting_avx2(ball, active) }, want);
+            }
+            met += want.count_ones();
+        }
+        assert!(met > 0 && met < balls.len() as u32 * active.count_ones(), "the cases meet some and miss some");
     }
 
     #[test]
