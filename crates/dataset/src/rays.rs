@@ -1,8 +1,8 @@
 //! The sensor's rays, grouped into small square tiles of neighbouring pixels.
 //!
-//! Rays of a tile point in nearly the same direction, so one bounding cone per tile lets the
-//! ray caster walk the BVH once for the whole tile and test each ray against only the few
-//! triangles that cone can reach.
+//! Rays of a tile point in nearly the same direction, so one bounding cone per tile (and one
+//! per block of tiles) lets the ray caster find the few triangles a tile can reach once for all
+//! its rays, and test each ray against only those.
 
 use glam::Vec3A;
 use sensor::Sensor;
