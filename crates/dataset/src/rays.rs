@@ -49,10 +49,8 @@ impl Cone {
     pub fn may_meet(&self, view: &BallView) -> bool {
         // The ball spans beta about its direction: it meets the cone if that direction is
         // within alpha + beta (< 180 degrees) of the axis.
-        let cos_sum = self.cos_half_angle * view.cos_b - self.sin_half_angle * view.sin_b;
-        // Summed in this order, as the batched forms below do, so that they agree bit for bit.
-        let dot = view.dir.x * self.axis.x + view.dir.y * self.axis.y + view.dir.z * self.axis.z;
-        dot >= cos_sum - 1e-5
+        let a = self.axis;
+        meets([a.x, a.y, a.z], self.cos_half_angle, self.sin_half_angle, view.dir.to_array(), view.cos_b, view.sin_b)
     }
 
     /// Whether the cone may meet the ball of `radius` about `centre` (conservative).
@@ -65,6 +63,17 @@ impl Cone {
         let cos_sum = self.cos_half_angle * other.cos_half_angle - self.sin_half_angle * other.sin_half_angle;
         self.axis.dot(other.axis) >= cos_sum - 1e-5
     }
+}
+
+/// The cone test itself: a cone about `axis` of half-angle alpha meets a ball seen at `dir`
+/// spanning beta when `dir` lies within alpha + beta of the axis (with a margin for rounding).
+/// Every scalar form calls this, and the AVX2 forms do the same operations in the same order,
+/// so all of them agree bit for bit.
+#[inline(always)]
+fn meets(axis: [f32; 3], cos_a: f32, sin_a: f32, dir: [f32; 3], cos_b: f32, sin_b: f32) -> bool {
+    let cos_sum = cos_a * cos_b - sin_a * sin_b;
+    let dot = dir[0] * axis[0] + dir[1] * axis[1] + dir[2] * axis[2];
+    dot >= cos_sum - 1e-5
 }
 
 /// A ball as seen from the origin: its direction and the sine and cosine of the angle it spans.
@@ -129,11 +138,16 @@ impl BallViews {
     /// Appends to `out` the index of every ball that `cone` may meet, in order.
     #[inline(always)]
     pub fn meeting(&self, cone: &Cone, out: &mut Vec<u32>) {
-        let (a, ca, sa) = (cone.axis, cone.cos_half_angle, cone.sin_half_angle);
-        for i in 0..self.len() {
-            let cos_sum = ca * self.cos[i] - sa * self.sin[i];
-            let dot = self.x[i] * a.x + self.y[i] * a.y + self.z[i] * a.z;
-            if dot >= cos_sum - 1e-5 {
+        self.meeting_from(0, cone, out)
+    }
+
+    /// `meeting` over the balls from index `start` on.
+    #[inline(always)]
+    fn meeting_from(&self, start: usize, cone: &Cone, out: &mut Vec<u32>) {
+        let a = cone.axis;
+        for i in start..self.len() {
+            let dir = [self.x[i], self.y[i], self.z[i]];
+            if meets([a.x, a.y, a.z], cone.cos_half_angle, cone.sin_half_angle, dir, self.cos[i], self.sin[i]) {
                 out.push(i as u32);
             }
         }
@@ -167,13 +181,7 @@ impl BallViews {
                 bits &= bits - 1;
             }
         }
-        for i in whole..self.len() {
-            let cos_sum = cone.cos_half_angle * self.cos[i] - cone.sin_half_angle * self.sin[i];
-            let dot = self.x[i] * a.x + self.y[i] * a.y + self.z[i] * a.z;
-            if dot >= cos_sum - 1e-5 {
-                out.push(i as u32);
-            }
-        }
+        self.meeting_from(whole, cone, out);
     }
 }
 
@@ -219,9 +227,9 @@ impl BlockCones {
                 continue;
             }
             for k in g..g + 8 {
-                let cos_sum = self.cos[k] * view.cos_b - self.sin[k] * view.sin_b;
-                let dot = view.dir.x * self.x[k] + view.dir.y * self.y[k] + view.dir.z * self.z[k];
-                mask |= ((dot >= cos_sum - 1e-5) as u64) << k;
+                let axis = [self.x[k], self.y[k], self.z[k]];
+                let met = meets(axis, self.cos[k], self.sin[k], view.dir.to_array(), view.cos_b, view.sin_b);
+                mask |= (met as u64) << k;
             }
         }
         mask & active
