@@ -7,6 +7,7 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::tensor::activation::{leaky_relu, relu};
 use burn::tensor::{Device, Tensor};
 
+use crate::conv::conv2d;
 use crate::densenet::Skips;
 use crate::upsample::{Upsample, upsample_bilinear};
 
@@ -31,8 +32,8 @@ impl UpBlock {
     pub fn forward(&self, x: Tensor<4>, skip: Tensor<4>, mode: Upsample) -> Tensor<4> {
         let [_, _, h, w] = skip.dims();
         let x = Tensor::cat(vec![upsample_bilinear(x, [h, w], mode), skip], 1);
-        let x = leaky_relu(self.conv_a.forward(x), SLOPE);
-        leaky_relu(self.conv_b.forward(x), SLOPE)
+        let x = leaky_relu(conv2d(&self.conv_a, x), SLOPE);
+        leaky_relu(conv2d(&self.conv_b, x), SLOPE)
     }
 }
 
@@ -62,11 +63,11 @@ impl Decoder {
     }
 
     pub fn forward(&self, s: Skips, mode: Upsample) -> Tensor<4> {
-        let x = self.conv2.forward(relu(s.norm5));
+        let x = conv2d(&self.conv2, relu(s.norm5));
         let x = self.up1.forward(x, s.transition2, mode);
         let x = self.up2.forward(x, s.transition1, mode);
         let x = self.up3.forward(x, s.pool0, mode);
         let x = self.up4.forward(x, s.relu0, mode);
-        self.conv3.forward(x)
+        conv2d(&self.conv3, x)
     }
 }

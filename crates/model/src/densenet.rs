@@ -8,6 +8,7 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
 use crate::config::DenseNetConfig;
+use crate::conv::conv2d;
 
 fn conv(channels: [usize; 2], kernel: usize, stride: usize, padding: usize, device: &Device) -> Conv2d {
     Conv2dConfig::new(channels, [kernel, kernel])
@@ -39,12 +40,12 @@ impl DenseLayer {
 
     /// The new channels for the concatenated features `x`.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let x = self.conv1.forward(relu(self.norm1.forward(x)));
+        let x = conv2d(&self.conv1, relu(self.norm1.forward(x)));
         let x = match &self.norm2 {
             Some(norm) => norm.forward(x),
             None => x,
         };
-        self.conv2.forward(relu(x))
+        conv2d(&self.conv2, relu(x))
     }
 }
 
@@ -89,7 +90,7 @@ impl Transition {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        self.pool.forward(self.conv.forward(relu(self.norm.forward(x))))
+        self.pool.forward(conv2d(&self.conv, relu(self.norm.forward(x))))
     }
 }
 

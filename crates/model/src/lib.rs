@@ -4,9 +4,11 @@
 pub mod backend;
 pub mod bundle;
 pub mod config;
+pub mod conv;
 pub mod decoder;
 pub mod densedepth;
 pub mod densenet;
+pub mod gemm_conv;
 pub mod import;
 pub mod loss;
 pub mod scale;

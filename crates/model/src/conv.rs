@@ -1,0 +1,288 @@
+//! Convolutions that run as large matrix products on flex, forward and backward.
+//!
+//! The network's 1x1 and 3x3 stride-1 convolutions go through a Burn backend extension: on flex
+//! (f32) its forward and both gradients are `gemm_conv`'s products, and under autodiff a
+//! handwritten backward uses them. Every other case (other backends, dtypes, strides) is Burn's
+//! own `Conv2d::forward`, so results agree everywhere within float rounding.
+
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Backend, DispatchDevice, Flex, backend_extension};
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::Conv2d;
+use burn::tensor::{DType, Tensor, TensorData};
+use burn_flex::FlexTensor;
+
+use crate::gemm_conv::{self, ConvShape};
+
+/// A stride-1, square-kernel convolution with the same padding on every side.
+#[backend_extension(Flex, Autodiff: cfg(feature = "autodiff"))]
+pub trait GemmConvBackend: Backend {
+    /// `x` [batch, in, h, w] with `weight` [out, in, k, k].
+    fn gemm_conv2d(x: FloatTensor<Self>, weight: FloatTensor<Self>, padding: usize) -> FloatTensor<Self>;
+    /// The same plus `bias` [out] (the extension takes no optional tensors).
+    fn gemm_conv2d_bias(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        padding: usize,
+    ) -> FloatTensor<Self>;
+}
+
+/// The gradients a backend computes for `GemmConvBackend`'s autodiff form.
+pub trait GemmConvGrads: GemmConvBackend {
+    fn gemm_conv2d_input_grad(grad: FloatTensor<Self>, weight: FloatTensor<Self>, padding: usize) -> FloatTensor<Self>;
+    fn gemm_conv2d_weight_grad(
+        x: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        kernel: usize,
+        padding: usize,
+    ) -> FloatTensor<Self>;
+}
+
+fn shape_of(x: &FlexTensor, weight_dims: [usize; 2], kernel: usize, padding: usize) -> ConvShape {
+    let dims = x.layout().shape();
+    ConvShape {
+        batch: dims[0],
+        channels_in: weight_dims[1],
+        channels_out: weight_dims[0],
+        height: dims[2],
+        width: dims[3],
+        kernel,
+        padding,
+    }
+}
+
+fn contiguous(x: FlexTensor) -> FlexTensor {
+    if x.is_contiguous() && x.as_slice::<f32>().is_some() { x } else { x.to_contiguous() }
+}
+
+fn flex_tensor(values: Vec<f32>, shape: [usize; 4]) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(values, shape))
+}
+
+fn flex_conv(x: FlexTensor, weight: FlexTensor, bias: Option<FlexTensor>, padding: usize) -> FlexTensor {
+    let (x, weight) = (contiguous(x), contiguous(weight));
+    let w = weight.layout().shape();
+    let s = shape_of(&x, [w[0], w[1]], w[2], padding);
+    let bias = bias.map(contiguous);
+    let out = gemm_conv::forward(
+        x.as_slice().expect("contiguous f32"),
+        weight.as_slice().expect("contiguous f32"),
+        bias.as_ref().map(|b| b.as_slice().expect("contiguous f32")),
+        &s,
+    );
+    flex_tensor(out, [s.batch, s.channels_out, s.out_height(), s.out_width()])
+}
+
+impl GemmConvBackend for Flex {
+    fn gemm_conv2d(x: FlexTensor, weight: FlexTensor, padding: usize) -> FlexTensor {
+        flex_conv(x, weight, None, padding)
+    }
+
+    fn gemm_conv2d_bias(x: FlexTensor, weight: FlexTensor, bias: FlexTensor, padding: usize) -> FlexTensor {
+        flex_conv(x, weight, Some(bias), padding)
+    }
+}
+
+impl GemmConvGrads for Flex {
+    fn gemm_conv2d_input_grad(grad: FlexTensor, weight: FlexTensor, padding: usize) -> FlexTensor {
+        let (grad, weight) = (contiguous(grad), contiguous(weight));
+        let (w, g) = (weight.layout().shape(), grad.layout().shape());
+        let k = w[2];
+        let s = ConvShape {
+            batch: g[0],
+            channels_in: w[1],
+            channels_out: w[0],
+            height: g[2] + k - 1 - 2 * padding,
+            width: g[3] + k - 1 - 2 * padding,
+            kernel: k,
+            padding,
+        };
+        let dx = gemm_conv::input_grad(
+            grad.as_slice().expect("contiguous f32"),
+            weight.as_slice().expect("contiguous f32"),
+            &s,
+        );
+        flex_tensor(dx, [s.batch, s.channels_in, s.height, s.width])
+    }
+
+    fn gemm_conv2d_weight_grad(x: FlexTensor, grad: FlexTensor, kernel: usize, padding: usize) -> FlexTensor {
+        let (x, grad) = (contiguous(x), contiguous(grad));
+        let channels = [grad.layout().shape()[1], x.layout().shape()[1]];
+        let s = shape_of(&x, channels, kernel, padding);
+        let dw =
+            gemm_conv::weight_grad(x.as_slice().expect("contiguous f32"), grad.as_slice().expect("contiguous f32"), &s);
+        flex_tensor(dw, [s.channels_out, s.channels_in, kernel, kernel])
+    }
+}
+
+#[cfg(feature = "autodiff")]
+mod autodiff {
+    use burn::backend::TensorMetadata;
+    use burn::backend::autodiff::checkpoint::base::Checkpointer;
+    use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+    use burn::backend::autodiff::grads::Gradients;
+    use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+    use burn::backend::autodiff::{Autodiff, NodeId};
+    use burn::backend::ops::FloatTensorOps;
+    use burn::backend::tensor::FloatTensor;
+
+    use super::{GemmConvBackend, GemmConvGrads};
+
+    #[derive(Debug)]
+    struct GemmConvBackward;
+
+    impl<B: GemmConvGrads> Backward<B, 2> for GemmConvBackward {
+        /// Checkpointed input and weight, and the padding.
+        type State = (NodeId, NodeId, usize);
+
+        fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, checkpointer: &mut Checkpointer) {
+            let [node_x, node_weight] = ops.parents;
+            let grad = grads.consume::<B>(&ops.node);
+            let (x_state, weight_state, padding) = ops.state;
+            let x = checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(x_state);
+            let weight = checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(weight_state);
+            let kernel = weight.shape().dims::<4>()[2];
+            if let Some(node) = node_weight {
+                grads.register::<B>(node.id, B::gemm_conv2d_weight_grad(x, grad.clone(), kernel, padding));
+            }
+            if let Some(node) = node_x {
+                grads.register::<B>(node.id, B::gemm_conv2d_input_grad(grad, weight, padding));
+            }
+        }
+    }
+
+    impl<B: GemmConvGrads, C: CheckpointStrategy> GemmConvBackend for Autodiff<B, C> {
+        fn gemm_conv2d(x: FloatTensor<Self>, weight: FloatTensor<Self>, padding: usize) -> FloatTensor<Self> {
+            match GemmConvBackward.prepare::<C>([x.node(), weight.node()]).compute_bound().stateful() {
+                OpsKind::Tracked(mut prep) => {
+                    let x_state = prep.checkpoint(&x);
+                    let weight_state = prep.checkpoint(&weight);
+                    let out = B::gemm_conv2d(x.into_primitive(), weight.into_primitive(), padding);
+                    prep.finish((x_state, weight_state, padding), out)
+                }
+                OpsKind::UnTracked(prep) => {
+                    prep.finish(B::gemm_conv2d(x.into_primitive(), weight.into_primitive(), padding))
+                }
+            }
+        }
+
+        /// The bias through autodiff's own broadcast add: its gradient is a plain sum.
+        fn gemm_conv2d_bias(
+            x: FloatTensor<Self>,
+            weight: FloatTensor<Self>,
+            bias: FloatTensor<Self>,
+            padding: usize,
+        ) -> FloatTensor<Self> {
+            let channels = bias.shape().num_elements();
+            let out = Self::gemm_conv2d(x, weight, padding);
+            Self::float_add(out, Self::float_reshape(bias, [1, channels, 1, 1].into()))
+        }
+    }
+}
+
+/// The padding of `conv` when the matrix-product path can run it on `x`: flex (directly or
+/// under autodiff), f32, stride and dilation 1, one group, a square kernel, equal padding on
+/// every side no larger than `kernel - 1`.
+fn gemm_padding(conv: &Conv2d, x: &Tensor<4>) -> Option<usize> {
+    #[allow(unreachable_patterns)]
+    let on_flex = match x.device().as_dispatch().clone() {
+        DispatchDevice::Flex(_) => true,
+        #[cfg(feature = "autodiff")]
+        device @ DispatchDevice::Autodiff(_) => matches!(device.inner(), DispatchDevice::Flex(_)),
+        _ => false,
+    };
+    let [k, k2] = conv.kernel_size;
+    let padding = match &conv.padding {
+        PaddingConfig2d::Valid => 0,
+        PaddingConfig2d::Explicit(top, left, bottom, right) if [left, bottom, right].iter().all(|p| *p == top) => *top,
+        _ => return None,
+    };
+    let plain = conv.stride == [1, 1] && conv.dilation == [1, 1] && conv.groups == 1 && k == k2 && padding < k;
+    let f32s = x.dtype() == DType::F32 && conv.weight.val().dtype() == DType::F32;
+    let [_, _, h, w] = x.dims();
+    (on_flex && plain && f32s && h + 2 * padding >= k && w + 2 * padding >= k).then_some(padding)
+}
+
+/// `conv.forward(x)`, as matrix products where the backend and the layer allow it.
+pub fn conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let Some(padding) = gemm_padding(conv, &x) else {
+        return conv.forward(x);
+    };
+    type D = burn::backend::Dispatch;
+    let (x, weight) = (x.into_dispatch(), conv.weight.val().into_dispatch());
+    Tensor::from_dispatch(match &conv.bias {
+        Some(bias) => <D as GemmConvBackend>::gemm_conv2d_bias(x, weight, bias.val().into_dispatch(), padding),
+        None => <D as GemmConvBackend>::gemm_conv2d(x, weight, padding),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::conv::Conv2dConfig;
+    use burn::tensor::{Device, Distribution, Tolerance};
+
+    fn layers(device: &Device) -> Vec<Conv2d> {
+        let explicit = |p| PaddingConfig2d::Explicit(p, p, p, p);
+        vec![
+            Conv2dConfig::new([6, 4], [3, 3]).with_padding(explicit(1)).init(device),
+            Conv2dConfig::new([6, 5], [1, 1]).with_bias(false).init(device),
+            Conv2dConfig::new([3, 2], [3, 3]).with_padding(PaddingConfig2d::Valid).with_bias(false).init(device),
+        ]
+    }
+
+    #[test]
+    fn only_plain_stride_one_layers_on_flex_take_the_matrix_path() {
+        let device = crate::backend::default_device();
+        let x = Tensor::<4>::zeros([1, 6, 8, 8], &device);
+        let [same, pointwise, valid] = <[Conv2d; 3]>::try_from(layers(&device)).unwrap();
+        assert_eq!(gemm_padding(&same, &x), Some(1));
+        assert_eq!(gemm_padding(&pointwise, &x), Some(0));
+        assert_eq!(gemm_padding(&valid, &x.clone().slice([0..1, 0..3, 0..8, 0..8])), Some(0));
+        let strided = Conv2dConfig::new([6, 4], [3, 3]).with_stride([2, 2]).init(&device);
+        assert_eq!(gemm_padding(&strided, &x), None);
+        let lopsided =
+            Conv2dConfig::new([6, 4], [3, 3]).with_padding(PaddingConfig2d::Explicit(1, 0, 1, 0)).init(&device);
+        assert_eq!(gemm_padding(&lopsided, &x), None);
+        assert_eq!(gemm_padding(&same, &x.clone().cast(DType::F16)), None);
+    }
+
+    #[test]
+    fn forward_equals_burns_convolution() {
+        let device = crate::backend::default_device();
+        for conv in layers(&device) {
+            let [_, c, _, _] = conv.weight.dims();
+            let x = Tensor::<4>::random([2, c, 7, 9], Distribution::Normal(0.0, 1.0), &device);
+            conv2d(&conv, x.clone())
+                .into_data()
+                .assert_approx_eq::<f32>(&conv.forward(x).into_data(), Tolerance::rel_abs(1e-4, 1e-5));
+        }
+    }
+
+    /// The handwritten backward against Burn's autodiff of its own convolution: input, weight
+    /// and bias gradients of the same loss.
+    #[cfg(feature = "autodiff")]
+    #[test]
+    fn gradients_equal_burns_autodiff() {
+        let device = crate::backend::default_device().autodiff();
+        for conv in layers(&device) {
+            let [_, c, _, _] = conv.weight.dims();
+            let x = Tensor::<4>::random([2, c, 7, 9], Distribution::Normal(0.0, 1.0), &device).require_grad();
+            assert!(gemm_padding(&conv, &x).is_some(), "autodiff on flex takes the matrix path");
+            let probe = Tensor::<4>::random(conv.forward(x.clone()).dims(), Distribution::Normal(0.0, 1.0), &device);
+            let mine = (conv2d(&conv, x.clone()) * probe.clone()).sum().backward();
+            let theirs = (conv.forward(x.clone()) * probe).sum().backward();
+            let tol = Tolerance::rel_abs(1e-4, 1e-4);
+            x.grad(&mine).unwrap().into_data().assert_approx_eq::<f32>(&x.grad(&theirs).unwrap().into_data(), tol);
+            let (w_mine, w_theirs) = (conv.weight.grad(&mine).unwrap(), conv.weight.grad(&theirs).unwrap());
+            w_mine.into_data().assert_approx_eq::<f32>(&w_theirs.into_data(), tol);
+            if let Some(bias) = &conv.bias {
+                bias.grad(&mine)
+                    .unwrap()
+                    .into_data()
+                    .assert_approx_eq::<f32>(&bias.grad(&theirs).unwrap().into_data(), tol);
+            }
+        }
+    }
+}

@@ -1,0 +1,385 @@
+//! Stride-1 convolutions as matrix products over the zero-padded image, on plain `f32` slices.
+//!
+//! With the image padded and flattened row by row (padded width `wp`), the input under kernel
+//! tap `(ky, kx)` for every output position is one contiguous window of the flat image, shifted
+//! by `ky * wp + kx`: a matrix with ordinary strides. So the forward is `k * k` matrix products
+//! accumulated into one output, and the weight gradient is `k * k` products whose inner dimension
+//! runs over the whole image. flex lowers the weight gradient to a convolution with the batch as
+//! channels, which becomes one thin matrix product per input channel (about 4x slower for
+//! DenseNet's 3x3 layers here); this form keeps every product large. Each output row carries
+//! `k - 1` padding columns that are computed and then dropped (or, for gradients, zero).
+
+use rayon::prelude::*;
+
+/// Shapes of one convolution: `x` is `[batch, channels_in, height, width]`, the weight
+/// `[channels_out, channels_in, kernel, kernel]`, stride and dilation 1, `padding` on every side.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ConvShape {
+    pub batch: usize,
+    pub channels_in: usize,
+    pub channels_out: usize,
+    pub height: usize,
+    pub width: usize,
+    pub kernel: usize,
+    pub padding: usize,
+}
+
+impl ConvShape {
+    pub fn out_height(&self) -> usize {
+        self.height + 2 * self.padding + 1 - self.kernel
+    }
+
+    pub fn out_width(&self) -> usize {
+        self.width + 2 * self.padding + 1 - self.kernel
+    }
+
+    /// Row stride of the padded image (and of the output rows while they are computed).
+    fn padded_width(&self) -> usize {
+        self.width + 2 * self.padding
+    }
+
+    /// The 1x1 unpadded case needs no padded copy: the image itself is the matrix.
+    fn is_pointwise(&self) -> bool {
+        self.kernel == 1 && self.padding == 0
+    }
+
+    /// Elements per channel of the padded image: one spare row at the bottom, because the window
+    /// of the last tap runs `kernel - 1` elements past the last padded row.
+    fn padded_len(&self) -> usize {
+        if self.is_pointwise() {
+            self.height * self.width
+        } else {
+            (self.height + 2 * self.padding + 1) * self.padded_width()
+        }
+    }
+
+    /// Columns of one output matrix: output rows at the padded row stride.
+    fn columns(&self) -> usize {
+        self.out_height() * self.padded_width()
+    }
+
+    /// The convolution that gives the input gradient: the output gradient convolved with the
+    /// weight transposed and flipped, padded by `kernel - 1 - padding`.
+    pub fn transposed(&self) -> ConvShape {
+        ConvShape {
+            batch: self.batch,
+            channels_in: self.channels_out,
+            channels_out: self.channels_in,
+            height: self.out_height(),
+            width: self.out_width(),
+            kernel: self.kernel,
+            padding: self.kernel - 1 - self.padding,
+        }
+    }
+}
+
+/// A pointer that rayon tasks may share to write disjoint parts of one buffer.
+#[derive(Clone, Copy)]
+struct SharedMut(*mut f32);
+unsafe impl Send for SharedMut {}
+unsafe impl Sync for SharedMut {}
+
+impl SharedMut {
+    /// Through a method, so that closures capture the whole (Send) wrapper, not the raw field.
+    fn at(self, offset: usize) -> *mut f32 {
+        self.0.wrapping_add(offset)
+    }
+}
+
+/// Columns per task: at least two tasks per thread, and no wider than `MAX_COLUMNS`, so that a
+/// task's slice of the output (or its window of the image) stays in cache across the `k * k`
+/// products that revisit it.
+const MAX_COLUMNS: usize = 2048;
+
+/// Splits `n` columns into ranges of at most `MAX_COLUMNS` and about two per thread, none
+/// narrower than `min` unless `n` is.
+fn column_chunks(n: usize, min: usize) -> Vec<std::ops::Range<usize>> {
+    let want = (2 * rayon::current_num_threads()).max(1);
+    let size = n.div_ceil(want).clamp(min, MAX_COLUMNS.max(min)).min(n.max(1));
+    (0..n).step_by(size).map(|start| start..(start + size).min(n)).collect()
+}
+
+/// One image `[channels, height, width]` zero-padded into `[channels, padded_len]`.
+fn pad_image(image: &[f32], s: &ConvShape, channels: usize) -> Vec<f32> {
+    let (h, w, p, wp, len) = (s.height, s.width, s.padding, s.padded_width(), s.padded_len());
+    let mut padded = vec![0.0f32; channels * len];
+    padded.par_chunks_mut(len).zip(image.par_chunks(h * w)).for_each(|(dst, src)| {
+        for (row, src_row) in src.chunks_exact(w).enumerate() {
+            dst[(row + p) * wp + p..][..w].copy_from_slice(src_row);
+        }
+    });
+    padded
+}
+
+/// `dst[m, n] (+)= lhs[m, k] * rhs[k, n]` with element strides (column, row) for each matrix.
+#[allow(clippy::too_many_arguments)]
+unsafe fn matmul(
+    [m, n, k]: [usize; 3],
+    dst: *mut f32,
+    [dst_cs, dst_rs]: [usize; 2],
+    accumulate: bool,
+    lhs: *const f32,
+    [lhs_cs, lhs_rs]: [usize; 2],
+    rhs: *const f32,
+    [rhs_cs, rhs_rs]: [usize; 2],
+) {
+    // SAFETY: the callers pass pointers and strides that stay inside their buffers.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst,
+            dst_cs as isize,
+            dst_rs as isize,
+            accumulate,
+            lhs,
+            lhs_cs as isize,
+            lhs_rs as isize,
+            rhs,
+            rhs_cs as isize,
+            rhs_rs as isize,
+            1.0f32,
+            1.0f32,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        )
+    }
+}
+
+/// The convolution of `x` ([batch, channels_in, height, width]) with `weight`
+/// ([channels_out, channels_in, kernel, kernel]) plus `bias`: [batch, channels_out, out_height,
+/// out_width].
+pub fn forward(x: &[f32], weight: &[f32], bias: Option<&[f32]>, s: &ConvShape) -> Vec<f32> {
+    let (c, o, k) = (s.channels_in, s.channels_out, s.kernel);
+    let (ho, wo, wp, n, len) = (s.out_height(), s.out_width(), s.padded_width(), s.columns(), s.padded_len());
+    assert_eq!(x.len(), s.batch * c * s.height * s.width, "conv input size");
+    assert_eq!(weight.len(), o * c * k * k, "conv weight size");
+    let mut out = vec![0.0f32; s.batch * o * ho * wo];
+    // Pointwise outputs need no trimming: the products write straight into `out`.
+    let mut wide = if s.is_pointwise() { Vec::new() } else { vec![0.0f32; o * n] };
+    for (b, image) in x.chunks_exact(c * s.height * s.width).enumerate() {
+        let padded;
+        let flat = if s.is_pointwise() {
+            image
+        } else {
+            padded = pad_image(image, s, c);
+            &padded
+        };
+        let dst = SharedMut(if s.is_pointwise() { out[b * o * n..].as_mut_ptr() } else { wide.as_mut_ptr() });
+        column_chunks(n, 256).into_par_iter().for_each(|cols| {
+            for tap in 0..k * k {
+                let shift = (tap / k) * wp + tap % k;
+                // SAFETY: chunks cover disjoint columns of the [o, n] destination; the window of
+                // `flat` ends at most at `padded_len` (see `ConvShape::padded_len`).
+                unsafe {
+                    matmul(
+                        [o, cols.len(), c],
+                        dst.at(cols.start),
+                        [1, n],
+                        tap > 0,
+                        weight.as_ptr().add(tap),
+                        [k * k, c * k * k],
+                        flat.as_ptr().add(shift + cols.start),
+                        [1, len],
+                    );
+                }
+            }
+        });
+        let image_out = &mut out[b * o * ho * wo..][..o * ho * wo];
+        if !s.is_pointwise() {
+            image_out.par_chunks_mut(ho * wo).zip(wide.par_chunks(n)).for_each(|(dst, src)| {
+                for (row, dst_row) in dst.chunks_exact_mut(wo).enumerate() {
+                    dst_row.copy_from_slice(&src[row * wp..][..wo]);
+                }
+            });
+        }
+        if let Some(bias) = bias {
+            image_out.par_chunks_mut(ho * wo).zip(bias.par_iter()).for_each(|(plane, &v)| {
+                plane.iter_mut().for_each(|e| *e += v);
+            });
+        }
+    }
+    out
+}
+
+/// The gradient of the input: `grad` ([batch, channels_out, out_height, out_width]) convolved
+/// with the weight transposed and flipped.
+pub fn input_grad(grad: &[f32], weight: &[f32], s: &ConvShape) -> Vec<f32> {
+    let (c, o, k) = (s.channels_in, s.channels_out, s.kernel);
+    let mut flipped = vec![0.0f32; weight.len()];
+    for oc in 0..o {
+        for ic in 0..c {
+            for tap in 0..k * k {
+                flipped[(ic * o + oc) * k * k + (k * k - 1 - tap)] = weight[(oc * c + ic) * k * k + tap];
+            }
+        }
+    }
+    forward(grad, &flipped, None, &s.transposed())
+}
+
+/// The gradient of the weight: [channels_out, channels_in, kernel, kernel]. The inner dimension
+/// (every output position of every image) is split across threads, each summing into its own
+/// buffer, because the product's outer dimensions are too small to split well.
+pub fn weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
+    let (c, o, k) = (s.channels_in, s.channels_out, s.kernel);
+    let (ho, wo, wp, n, len) = (s.out_height(), s.out_width(), s.padded_width(), s.columns(), s.padded_len());
+    assert_eq!(x.len(), s.batch * c * s.height * s.width, "conv input size");
+    assert_eq!(grad.len(), s.batch * o * ho * wo, "conv output gradient size");
+    let size = o * c * k * k;
+    let mut total = vec![0.0f32; size];
+    for b in 0..s.batch {
+        let image = &x[b * c * s.height * s.width..][..c * s.height * s.width];
+        let image_grad = &grad[b * o * ho * wo..][..o * ho * wo];
+        let (padded, wide);
+        let (flat, g) = if s.is_pointwise() {
+            (image, image_grad)
+        } else {
+            padded = pad_image(image, s, c);
+            // The output gradient at the padded row stride, zero in the padding columns.
+            let mut spread = vec![0.0f32; o * n];
+            spread.par_chunks_mut(n).zip(image_grad.par_chunks(ho * wo)).for_each(|(dst, src)| {
+                for (row, src_row) in src.chunks_exact(wo).enumerate() {
+                    dst[row * wp..][..wo].copy_from_slice(src_row);
+                }
+            });
+            wide = spread;
+            (&padded[..], &wide[..])
+        };
+        // Each rayon split sums its column ranges into one buffer of its own.
+        let image_total = column_chunks(n, 512)
+            .into_par_iter()
+            .fold(
+                || vec![0.0f32; size],
+                |mut part, cols| {
+                    for tap in 0..k * k {
+                        let shift = (tap / k) * wp + tap % k;
+                        // SAFETY: `part` is [o, c, k, k] written at stride k*k from `tap`; the
+                        // window of `flat` ends at most at `padded_len`.
+                        unsafe {
+                            matmul(
+                                [o, c, cols.len()],
+                                part.as_mut_ptr().add(tap),
+                                [k * k, c * k * k],
+                                true,
+                                g.as_ptr().add(cols.start),
+                                [1, n],
+                                flat.as_ptr().add(shift + cols.start),
+                                [len, 1],
+                            );
+                        }
+                    }
+                    part
+                },
+            )
+            .reduce_with(|mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                a
+            });
+        if let Some(image_total) = image_total {
+            total.iter_mut().zip(&image_total).for_each(|(t, p)| *t += p);
+        }
+    }
+    total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Direct convolution by its definition, for reference.
+    fn naive(x: &[f32], weight: &[f32], s: &ConvShape) -> Vec<f32> {
+        let (c, o, k, p) = (s.channels_in, s.channels_out, s.kernel, s.padding as isize);
+        let (h, w, ho, wo) = (s.height, s.width, s.out_height(), s.out_width());
+        let mut out = vec![0.0f32; s.batch * o * ho * wo];
+        for b in 0..s.batch {
+            for oc in 0..o {
+                for i in 0..ho {
+                    for j in 0..wo {
+                        let mut acc = 0.0f64;
+                        for ic in 0..c {
+                            for ky in 0..k {
+                                for kx in 0..k {
+                                    let (y, xx) = (i as isize + ky as isize - p, j as isize + kx as isize - p);
+                                    if y >= 0 && xx >= 0 && (y as usize) < h && (xx as usize) < w {
+                                        acc += (x[((b * c + ic) * h + y as usize) * w + xx as usize]
+                                            * weight[((oc * c + ic) * k + ky) * k + kx])
+                                            as f64;
+                                    }
+                                }
+                            }
+                        }
+                        out[((b * o + oc) * ho + i) * wo + j] = acc as f32;
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    fn values(n: usize, seed: u32) -> Vec<f32> {
+        (0..n)
+            .map(|i| ((i as u32).wrapping_mul(2654435761).wrapping_add(seed) >> 8) as f32 / (1u32 << 24) as f32 - 0.5)
+            .collect()
+    }
+
+    fn close(a: &[f32], b: &[f32], what: &str) {
+        assert_eq!(a.len(), b.len(), "{what}: length");
+        let scale = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+        for (i, (x, y)) in a.iter().zip(b).enumerate() {
+            assert!((x - y).abs() <= 1e-5 * scale.max(1.0), "{what}[{i}]: {x} vs {y}");
+        }
+    }
+
+    const SHAPES: [ConvShape; 4] = [
+        ConvShape { batch: 2, channels_in: 5, channels_out: 3, height: 7, width: 9, kernel: 3, padding: 1 },
+        ConvShape { batch: 1, channels_in: 4, channels_out: 6, height: 5, width: 4, kernel: 1, padding: 0 },
+        ConvShape { batch: 2, channels_in: 3, channels_out: 2, height: 6, width: 8, kernel: 3, padding: 0 },
+        ConvShape { batch: 1, channels_in: 2, channels_out: 3, height: 6, width: 5, kernel: 5, padding: 2 },
+    ];
+
+    #[test]
+    fn forward_matches_the_definition() {
+        for s in SHAPES {
+            let x = values(s.batch * s.channels_in * s.height * s.width, 1);
+            let weight = values(s.channels_out * s.channels_in * s.kernel * s.kernel, 2);
+            let bias = values(s.channels_out, 3);
+            let mut expected = naive(&x, &weight, &s);
+            let plane = s.out_height() * s.out_width();
+            for (i, v) in expected.iter_mut().enumerate() {
+                *v += bias[(i / plane) % s.channels_out];
+            }
+            close(&forward(&x, &weight, Some(&bias), &s), &expected, &format!("{s:?}"));
+        }
+    }
+
+    /// The gradients against the definition: for the loss `sum(g * conv(x, w))`, the weight
+    /// gradient's entry is the forward with a one-hot weight, and the input gradient's entry
+    /// the forward with a one-hot input.
+    #[test]
+    fn gradients_match_one_hot_forwards() {
+        for s in SHAPES {
+            let (nx, nw) =
+                (s.batch * s.channels_in * s.height * s.width, s.channels_out * s.channels_in * s.kernel * s.kernel);
+            let x = values(nx, 4);
+            let weight = values(nw, 5);
+            let grad = values(s.batch * s.channels_out * s.out_height() * s.out_width(), 6);
+            // Entry i of the gradient: the loss with the i-th of `n` inputs one-hot.
+            let one_hot = |n: usize, loss: &dyn Fn(&[f32]) -> Vec<f32>| -> Vec<f32> {
+                (0..n)
+                    .map(|i| {
+                        let mut one = vec![0.0; n];
+                        one[i] = 1.0;
+                        loss(&one).iter().zip(&grad).map(|(p, q)| (p * q) as f64).sum::<f64>() as f32
+                    })
+                    .collect()
+            };
+            let expected_dw = one_hot(nw, &|one| naive(&x, one, &s));
+            let expected_dx = one_hot(nx, &|one| naive(one, &weight, &s));
+            close(&weight_grad(&x, &grad, &s), &expected_dw, &format!("weight grad {s:?}"));
+            close(&input_grad(&grad, &weight, &s), &expected_dx, &format!("input grad {s:?}"));
+        }
+    }
+}
