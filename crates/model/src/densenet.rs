@@ -9,6 +9,7 @@ use burn::tensor::{Device, Tensor};
 
 use crate::config::DenseNetConfig;
 use crate::conv::conv2d;
+use crate::norm_relu::norm_relu;
 
 fn conv(channels: [usize; 2], kernel: usize, stride: usize, padding: usize, device: &Device) -> Conv2d {
     Conv2dConfig::new(channels, [kernel, kernel])
@@ -40,7 +41,7 @@ impl DenseLayer {
 
     /// The new channels for the concatenated features `x`.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let x = conv2d(&self.conv1, relu(self.norm1.forward(x)));
+        let x = conv2d(&self.conv1, norm_relu(&self.norm1, x));
         let x = match &self.norm2 {
             Some(norm) => norm.forward(x),
             None => x,
@@ -90,7 +91,7 @@ impl Transition {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        self.pool.forward(conv2d(&self.conv, relu(self.norm.forward(x))))
+        self.pool.forward(conv2d(&self.conv, norm_relu(&self.norm, x)))
     }
 }
 

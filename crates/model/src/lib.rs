@@ -11,6 +11,7 @@ pub mod densenet;
 pub mod gemm_conv;
 pub mod import;
 pub mod loss;
+pub mod norm_relu;
 pub mod scale;
 pub mod tensor_file;
 pub mod upsample;
