@@ -52,8 +52,9 @@ fn shape_of(x: &FlexTensor, weight_dims: [usize; 2], kernel: usize, padding: usi
     }
 }
 
-fn contiguous(x: FlexTensor) -> FlexTensor {
-    if x.is_contiguous() && x.as_slice::<f32>().is_some() { x } else { x.to_contiguous() }
+/// `x` as one readable f32 slice: kept when it already is one, copied otherwise.
+pub(crate) fn contiguous(x: FlexTensor) -> FlexTensor {
+    if x.as_slice::<f32>().is_some() { x } else { x.to_contiguous() }
 }
 
 fn flex_tensor(values: Vec<f32>, shape: [usize; 4]) -> FlexTensor {

@@ -9,7 +9,7 @@ use burn::tensor::{Device, Tensor};
 
 use crate::config::DenseNetConfig;
 use crate::conv::conv2d;
-use crate::norm_relu::norm_relu;
+use crate::norm_relu::{inference_affine, norm_relu};
 
 fn conv(channels: [usize; 2], kernel: usize, stride: usize, padding: usize, device: &Device) -> Conv2d {
     Conv2dConfig::new(channels, [kernel, kernel])
@@ -167,14 +167,16 @@ impl DenseNetEncoder {
     }
 }
 
-/// `bn(conv(x))` as one convolution: `W' = W s`, `b' = s (b - mean) + beta`, with
-/// `s = gamma / sqrt(var + eps)` per output channel. Inference only (running statistics).
+/// `bn(conv(x))` as one convolution: `W' = W scale`, `b' = b scale + shift`, with the batch
+/// norm's per-channel `scale` and `shift` (`inference_affine`). Inference only.
 pub fn fold_batch_norm(mut conv: Conv2d, bn: &BatchNorm) -> Conv2d {
-    let scale = bn.gamma.val() / bn.running_var.value().add_scalar(bn.epsilon).sqrt();
+    let (scale, shift) = inference_affine(bn);
     let [out, _, _, _] = conv.weight.dims();
     let weight = conv.weight.val() * scale.clone().reshape([out, 1, 1, 1]);
-    let bias = conv.bias.as_ref().map(|b| b.val()).unwrap_or_else(|| scale.zeros_like());
-    let bias = (bias - bn.running_mean.value()) * scale + bn.beta.val();
+    let bias = match &conv.bias {
+        Some(b) => b.val() * scale + shift,
+        None => shift,
+    };
     conv.weight = burn::module::Param::from_tensor(weight);
     conv.bias = Some(burn::module::Param::from_tensor(bias));
     conv

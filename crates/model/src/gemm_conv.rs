@@ -99,15 +99,28 @@ fn column_chunks(n: usize, min: usize) -> Vec<std::ops::Range<usize>> {
     (0..n).step_by(size).map(|start| start..(start + size).min(n)).collect()
 }
 
-/// One image `[channels, height, width]` zero-padded into `[channels, padded_len]`.
-fn pad_image(image: &[f32], s: &ConvShape, channels: usize) -> Vec<f32> {
-    let (h, w, p, wp, len) = (s.height, s.width, s.padding, s.padded_width(), s.padded_len());
-    let mut padded = vec![0.0f32; channels * len];
-    padded.par_chunks_mut(len).zip(image.par_chunks(h * w)).for_each(|(dst, src)| {
-        for (row, src_row) in src.chunks_exact(w).enumerate() {
-            dst[(row + p) * wp + p..][..w].copy_from_slice(src_row);
+/// Copies `planes` ([planes, rows, width], dense) into `into` ([planes, plane_len]), each row
+/// at `offset + row * stride` of its plane; the rest of `into` keeps its zeros.
+fn spread_rows(
+    into: &mut [f32],
+    plane_len: usize,
+    planes: &[f32],
+    [rows, width]: [usize; 2],
+    stride: usize,
+    offset: usize,
+) {
+    into.par_chunks_mut(plane_len).zip(planes.par_chunks(rows * width)).for_each(|(dst, src)| {
+        for (row, src_row) in src.chunks_exact(width).enumerate() {
+            dst[offset + row * stride..][..width].copy_from_slice(src_row);
         }
     });
+}
+
+/// One image `[channels, height, width]` zero-padded into `[channels, padded_len]`.
+fn pad_image(image: &[f32], s: &ConvShape, channels: usize) -> Vec<f32> {
+    let (p, wp, len) = (s.padding, s.padded_width(), s.padded_len());
+    let mut padded = vec![0.0f32; channels * len];
+    spread_rows(&mut padded, len, image, [s.height, s.width], wp, p * wp + p);
     padded
 }
 
@@ -240,11 +253,7 @@ pub fn weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
             padded = pad_image(image, s, c);
             // The output gradient at the padded row stride, zero in the padding columns.
             let mut spread = vec![0.0f32; o * n];
-            spread.par_chunks_mut(n).zip(image_grad.par_chunks(ho * wo)).for_each(|(dst, src)| {
-                for (row, src_row) in src.chunks_exact(wo).enumerate() {
-                    dst[row * wp..][..wo].copy_from_slice(src_row);
-                }
-            });
+            spread_rows(&mut spread, n, image_grad, [ho, wo], wp, 0);
             wide = spread;
             (&padded[..], &wide[..])
         };

@@ -14,6 +14,8 @@ use burn::tensor::{DType, Tensor, TensorData};
 use burn_flex::FlexTensor;
 use rayon::prelude::*;
 
+use crate::conv::contiguous;
+
 #[backend_extension(Flex)]
 pub trait NormReluBackend: Backend {
     /// `max(0, x * scale[c] + shift[c])` for `x` [batch, channels, ...].
@@ -22,9 +24,8 @@ pub trait NormReluBackend: Backend {
 
 impl NormReluBackend for Flex {
     fn scale_shift_relu(x: FlexTensor, scale: FlexTensor, shift: FlexTensor) -> FlexTensor {
-        let x = x.to_contiguous();
+        let (x, scale, shift) = (contiguous(x), contiguous(scale), contiguous(shift));
         let dims = x.layout().shape().to_vec();
-        let (scale, shift) = (scale.to_contiguous(), shift.to_contiguous());
         let plane = dims[2..].iter().product();
         let out = scale_shift_relu_slices(
             x.as_slice().expect("contiguous f32"),
@@ -52,14 +53,21 @@ fn scale_shift_relu_slices(x: &[f32], plane: usize, scale: &[f32], shift: &[f32]
     out
 }
 
+/// A batch norm with running statistics as `x * scale + shift` per channel:
+/// `scale = gamma / sqrt(var + eps)`, `shift = beta - mean * scale`.
+pub fn inference_affine(norm: &BatchNorm) -> (Tensor<1>, Tensor<1>) {
+    let scale = norm.gamma.val() / norm.running_var.value().add_scalar(norm.epsilon).sqrt();
+    let shift = norm.beta.val() - norm.running_mean.value() * scale.clone();
+    (scale, shift)
+}
+
 /// `relu(norm.forward(x))`, in one pass on flex outside autodiff.
 pub fn norm_relu<const D: usize>(norm: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
     let plain_flex = matches!(x.device().as_dispatch(), DispatchDevice::Flex(_));
     if !plain_flex || x.dtype() != DType::F32 || norm.gamma.val().dtype() != DType::F32 {
         return relu(norm.forward(x));
     }
-    let scale = norm.gamma.val() / norm.running_var.value().add_scalar(norm.epsilon).sqrt();
-    let shift = norm.beta.val() - norm.running_mean.value() * scale.clone();
+    let (scale, shift) = inference_affine(norm);
     type Dispatch = burn::backend::Dispatch;
     Tensor::from_dispatch(<Dispatch as NormReluBackend>::scale_shift_relu(
         x.into_dispatch(),
