@@ -4,11 +4,50 @@
 //! chosen at run time, with a fallback on older CPUs): DenseDepth-161 forward at 480x640 took
 //! 1.63 s with it, 3.5 s without, and 20.4 s on the deprecated burn-ndarray (field notes).
 
-use burn::tensor::Device;
+use burn::backend::{BackendTensor, DispatchAutodiffContext, DispatchTensor, DispatchTensorKind};
+use burn::tensor::{DType, Device, Tensor, TensorData};
+use burn_flex::FlexTensor;
 
 /// The default device: flex on the CPU.
 pub fn default_device() -> Device {
     Device::flex()
+}
+
+/// The flex tensor behind `x` when `x` is f32 on flex outside autodiff: where this crate's
+/// inference kernels (`conv_forward`, `dense_block`, `norm_relu`, `pool`, `upsample`) replace
+/// Burn's generic operations. Cheap: flex tensors share their storage.
+pub(crate) fn flex_f32<const D: usize>(x: &Tensor<D>) -> Option<FlexTensor> {
+    let tensor = x.clone().into_dispatch();
+    match (tensor.kind, tensor.autodiff) {
+        (DispatchTensorKind::Flex(BackendTensor::Float(t)), DispatchAutodiffContext::Disabled)
+            if t.dtype() == DType::F32 =>
+        {
+            Some(contiguous(t))
+        }
+        _ => None,
+    }
+}
+
+/// A plain flex tensor back as a `Tensor`.
+pub(crate) fn from_flex<const D: usize>(t: FlexTensor) -> Tensor<D> {
+    Tensor::from_dispatch(DispatchTensor {
+        kind: DispatchTensorKind::Flex(BackendTensor::Float(t)),
+        autodiff: DispatchAutodiffContext::Disabled,
+    })
+}
+
+/// `x` as one readable f32 slice: kept when it already is one, copied otherwise.
+pub(crate) fn contiguous(x: FlexTensor) -> FlexTensor {
+    if x.as_slice::<f32>().is_some() { x } else { x.to_contiguous() }
+}
+
+/// The values of a contiguous f32 flex tensor.
+pub(crate) fn slice(x: &FlexTensor) -> &[f32] {
+    x.as_slice().expect("a contiguous f32 tensor")
+}
+
+pub(crate) fn flex_tensor(values: Vec<f32>, shape: &[usize]) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(values, shape.to_vec()))
 }
 
 /// The default wgpu adapter (a discrete GPU when there is one; Mesa's lavapipe on a CPU-only
@@ -43,7 +82,6 @@ pub fn ndarray_device() -> Device {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use burn::tensor::Tensor;
 
     #[test]
     fn flex_computes_a_matrix_product() {

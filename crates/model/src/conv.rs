@@ -1,17 +1,22 @@
 //! Convolutions that run as large matrix products on flex, forward and backward.
 //!
-//! The network's 1x1 and 3x3 stride-1 convolutions go through a Burn backend extension: on flex
-//! (f32) its forward and both gradients are `gemm_conv`'s products, and under autodiff a
-//! handwritten backward uses them. Every other case (other backends, dtypes, strides) is Burn's
-//! own `Conv2d::forward`, so results agree everywhere within float rounding.
+//! On flex (f32) outside autodiff, `conv2d_act` calls `conv_forward` directly, with the layer's
+//! bias and activation applied while the output is in cache. Under autodiff on flex, stride-1
+//! layers go through a Burn backend extension whose forward and gradients are the same matrix
+//! products (`gemm_conv`), with a handwritten backward. Every other case (other backends,
+//! dtypes, strided layers under autodiff) is Burn's own `Conv2d::forward`, so results agree
+//! everywhere within float rounding.
 
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, DispatchDevice, Flex, backend_extension};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2d;
-use burn::tensor::{DType, Tensor, TensorData};
+use burn::tensor::activation::{leaky_relu, relu};
+use burn::tensor::{DType, Tensor};
 use burn_flex::FlexTensor;
 
+use crate::backend::{contiguous, flex_f32, flex_tensor, from_flex, slice};
+use crate::conv_forward::{self, Activation, Epilogue};
 use crate::gemm_conv::{self, ConvShape};
 
 /// A stride-1, square-kernel convolution with the same padding on every side.
@@ -39,7 +44,7 @@ pub trait GemmConvGrads: GemmConvBackend {
     ) -> FloatTensor<Self>;
 }
 
-fn shape_of(x: &FlexTensor, weight_dims: [usize; 2], kernel: usize, padding: usize) -> ConvShape {
+fn shape_of(x: &FlexTensor, weight_dims: [usize; 2], kernel: usize, padding: usize, stride: usize) -> ConvShape {
     let dims = x.layout().shape();
     ConvShape {
         batch: dims[0],
@@ -49,39 +54,33 @@ fn shape_of(x: &FlexTensor, weight_dims: [usize; 2], kernel: usize, padding: usi
         width: dims[3],
         kernel,
         padding,
+        stride,
     }
 }
 
-/// `x` as one readable f32 slice: kept when it already is one, copied otherwise.
-pub(crate) fn contiguous(x: FlexTensor) -> FlexTensor {
-    if x.as_slice::<f32>().is_some() { x } else { x.to_contiguous() }
-}
-
-fn flex_tensor(values: Vec<f32>, shape: [usize; 4]) -> FlexTensor {
-    FlexTensor::from_data(TensorData::new(values, shape))
-}
-
-fn flex_conv(x: FlexTensor, weight: FlexTensor, bias: Option<FlexTensor>, padding: usize) -> FlexTensor {
-    let (x, weight) = (contiguous(x), contiguous(weight));
+/// The convolution on flex tensors, with the bias and activation as its epilogue.
+fn flex_conv(
+    x: FlexTensor,
+    weight: FlexTensor,
+    bias: Option<FlexTensor>,
+    [padding, stride]: [usize; 2],
+    activation: Activation,
+) -> FlexTensor {
+    let (x, weight, bias) = (contiguous(x), contiguous(weight), bias.map(contiguous));
     let w = weight.layout().shape();
-    let s = shape_of(&x, [w[0], w[1]], w[2], padding);
-    let bias = bias.map(contiguous);
-    let out = gemm_conv::forward(
-        x.as_slice().expect("contiguous f32"),
-        weight.as_slice().expect("contiguous f32"),
-        bias.as_ref().map(|b| b.as_slice().expect("contiguous f32")),
-        &s,
-    );
-    flex_tensor(out, [s.batch, s.channels_out, s.out_height(), s.out_width()])
+    let s = shape_of(&x, [w[0], w[1]], w[2], padding, stride);
+    let epilogue = Epilogue::bias(bias.as_ref().map(slice), activation);
+    let out = conv_forward::forward_with(slice(&x), slice(&weight), &s, None, &epilogue);
+    flex_tensor(out, &[s.batch, s.channels_out, s.out_height(), s.out_width()])
 }
 
 impl GemmConvBackend for Flex {
     fn gemm_conv2d(x: FlexTensor, weight: FlexTensor, padding: usize) -> FlexTensor {
-        flex_conv(x, weight, None, padding)
+        flex_conv(x, weight, None, [padding, 1], Activation::Identity)
     }
 
     fn gemm_conv2d_bias(x: FlexTensor, weight: FlexTensor, bias: FlexTensor, padding: usize) -> FlexTensor {
-        flex_conv(x, weight, Some(bias), padding)
+        flex_conv(x, weight, Some(bias), [padding, 1], Activation::Identity)
     }
 }
 
@@ -98,22 +97,18 @@ impl GemmConvGrads for Flex {
             width: g[3] + k - 1 - 2 * padding,
             kernel: k,
             padding,
+            stride: 1,
         };
-        let dx = gemm_conv::input_grad(
-            grad.as_slice().expect("contiguous f32"),
-            weight.as_slice().expect("contiguous f32"),
-            &s,
-        );
-        flex_tensor(dx, [s.batch, s.channels_in, s.height, s.width])
+        let dx = gemm_conv::input_grad(slice(&grad), slice(&weight), &s);
+        flex_tensor(dx, &[s.batch, s.channels_in, s.height, s.width])
     }
 
     fn gemm_conv2d_weight_grad(x: FlexTensor, grad: FlexTensor, kernel: usize, padding: usize) -> FlexTensor {
         let (x, grad) = (contiguous(x), contiguous(grad));
         let channels = [grad.layout().shape()[1], x.layout().shape()[1]];
-        let s = shape_of(&x, channels, kernel, padding);
-        let dw =
-            gemm_conv::weight_grad(x.as_slice().expect("contiguous f32"), grad.as_slice().expect("contiguous f32"), &s);
-        flex_tensor(dw, [s.channels_out, s.channels_in, kernel, kernel])
+        let s = shape_of(&x, channels, kernel, padding, 1);
+        let dw = gemm_conv::weight_grad(slice(&x), slice(&grad), &s);
+        flex_tensor(dw, &[s.channels_out, s.channels_in, kernel, kernel])
     }
 }
 
@@ -182,40 +177,70 @@ mod autodiff {
     }
 }
 
-/// The padding of `conv` when the matrix-product path can run it on `x`: flex (directly or
-/// under autodiff), f32, stride and dilation 1, one group, a square kernel, equal padding on
-/// every side no larger than `kernel - 1`.
-fn gemm_padding(conv: &Conv2d, x: &Tensor<4>) -> Option<usize> {
+/// The padding when it is the same on every side (`Same` is left to Burn).
+pub(crate) fn symmetric_padding(padding: &PaddingConfig2d) -> Option<usize> {
+    match padding {
+        PaddingConfig2d::Valid => Some(0),
+        PaddingConfig2d::Explicit(top, left, bottom, right) if [left, bottom, right].iter().all(|p| *p == top) => {
+            Some(*top)
+        }
+        _ => None,
+    }
+}
+
+/// The padding and stride of `conv` when the matrix-product path can run it on `x`: flex
+/// (directly, or under autodiff with stride 1), f32, dilation 1, one group, a square kernel,
+/// equal padding on every side no larger than `kernel - 1`.
+fn gemm_padding(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize)> {
     #[allow(unreachable_patterns)]
-    let on_flex = match x.device().as_dispatch().clone() {
-        DispatchDevice::Flex(_) => true,
+    let (on_flex, tracked) = match x.device().as_dispatch().clone() {
+        DispatchDevice::Flex(_) => (true, false),
         #[cfg(feature = "autodiff")]
-        device @ DispatchDevice::Autodiff(_) => matches!(device.inner(), DispatchDevice::Flex(_)),
-        _ => false,
+        device @ DispatchDevice::Autodiff(_) => (matches!(device.inner(), DispatchDevice::Flex(_)), true),
+        _ => (false, false),
     };
     let [k, k2] = conv.kernel_size;
-    let padding = match &conv.padding {
-        PaddingConfig2d::Valid => 0,
-        PaddingConfig2d::Explicit(top, left, bottom, right) if [left, bottom, right].iter().all(|p| *p == top) => *top,
-        _ => return None,
-    };
-    let plain = conv.stride == [1, 1] && conv.dilation == [1, 1] && conv.groups == 1 && k == k2 && padding < k;
+    let padding = symmetric_padding(&conv.padding)?;
+    let [stride, stride2] = conv.stride;
+    let strided_ok = stride == stride2 && stride >= 1 && (stride == 1 || !tracked);
+    let plain = strided_ok && conv.dilation == [1, 1] && conv.groups == 1 && k == k2 && padding < k;
     let f32s = x.dtype() == DType::F32 && conv.weight.val().dtype() == DType::F32;
     let [_, _, h, w] = x.dims();
-    (on_flex && plain && f32s && h + 2 * padding >= k && w + 2 * padding >= k).then_some(padding)
+    (on_flex && plain && f32s && h + 2 * padding >= k && w + 2 * padding >= k).then_some((padding, stride))
 }
 
 /// `conv.forward(x)`, as matrix products where the backend and the layer allow it.
 pub fn conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    let Some(padding) = gemm_padding(conv, &x) else {
-        return conv.forward(x);
+    conv2d_act(conv, x, Activation::Identity)
+}
+
+/// `activation(conv.forward(x))`; on plain flex the activation rides in the convolution.
+pub fn conv2d_act(conv: &Conv2d, x: Tensor<4>, activation: Activation) -> Tensor<4> {
+    let Some((padding, stride)) = gemm_padding(conv, &x) else {
+        return activate(conv.forward(x), activation);
     };
+    if let (Some(input), Some(weight)) = (flex_f32(&x), flex_f32(&conv.weight.val())) {
+        let bias = conv.bias.as_ref().and_then(|b| flex_f32(&b.val()));
+        return from_flex(flex_conv(input, weight, bias, [padding, stride], activation));
+    }
     type D = burn::backend::Dispatch;
     let (x, weight) = (x.into_dispatch(), conv.weight.val().into_dispatch());
-    Tensor::from_dispatch(match &conv.bias {
-        Some(bias) => <D as GemmConvBackend>::gemm_conv2d_bias(x, weight, bias.val().into_dispatch(), padding),
-        None => <D as GemmConvBackend>::gemm_conv2d(x, weight, padding),
-    })
+    activate(
+        Tensor::from_dispatch(match &conv.bias {
+            Some(bias) => <D as GemmConvBackend>::gemm_conv2d_bias(x, weight, bias.val().into_dispatch(), padding),
+            None => <D as GemmConvBackend>::gemm_conv2d(x, weight, padding),
+        }),
+        activation,
+    )
+}
+
+/// The activation through Burn's operations.
+fn activate(x: Tensor<4>, activation: Activation) -> Tensor<4> {
+    match activation {
+        Activation::Identity => x,
+        Activation::Relu => relu(x),
+        Activation::Leaky(slope) => leaky_relu(x, slope as f64),
+    }
 }
 
 #[cfg(test)]
@@ -230,19 +255,25 @@ mod tests {
             Conv2dConfig::new([6, 4], [3, 3]).with_padding(explicit(1)).init(device),
             Conv2dConfig::new([6, 5], [1, 1]).with_bias(false).init(device),
             Conv2dConfig::new([3, 2], [3, 3]).with_padding(PaddingConfig2d::Valid).with_bias(false).init(device),
+            // DenseNet's stem: 7x7, stride 2, padding 3.
+            Conv2dConfig::new([6, 4], [7, 7]).with_stride([2, 2]).with_padding(explicit(3)).init(device),
         ]
     }
 
     #[test]
-    fn only_plain_stride_one_layers_on_flex_take_the_matrix_path() {
+    fn only_plain_layers_on_flex_take_the_matrix_path() {
         let device = crate::backend::default_device();
         let x = Tensor::<4>::zeros([1, 6, 8, 8], &device);
-        let [same, pointwise, valid] = <[Conv2d; 3]>::try_from(layers(&device)).unwrap();
-        assert_eq!(gemm_padding(&same, &x), Some(1));
-        assert_eq!(gemm_padding(&pointwise, &x), Some(0));
-        assert_eq!(gemm_padding(&valid, &x.clone().slice([0..1, 0..3, 0..8, 0..8])), Some(0));
-        let strided = Conv2dConfig::new([6, 4], [3, 3]).with_stride([2, 2]).init(&device);
-        assert_eq!(gemm_padding(&strided, &x), None);
+        let [same, pointwise, valid, strided] = <[Conv2d; 4]>::try_from(layers(&device)).unwrap();
+        assert_eq!(gemm_padding(&same, &x), Some((1, 1)));
+        assert_eq!(gemm_padding(&pointwise, &x), Some((0, 1)));
+        assert_eq!(gemm_padding(&valid, &x.clone().slice([0..1, 0..3, 0..8, 0..8])), Some((0, 1)));
+        // Strided layers only outside autodiff: their backward is Burn's.
+        assert_eq!(gemm_padding(&strided, &x), Some((3, 2)));
+        #[cfg(feature = "autodiff")]
+        assert_eq!(gemm_padding(&strided, &Tensor::<4>::zeros([1, 6, 8, 8], &device.clone().autodiff())), None);
+        let uneven = Conv2dConfig::new([6, 4], [3, 3]).with_stride([2, 1]).init(&device);
+        assert_eq!(gemm_padding(&uneven, &x), None);
         let lopsided =
             Conv2dConfig::new([6, 4], [3, 3]).with_padding(PaddingConfig2d::Explicit(1, 0, 1, 0)).init(&device);
         assert_eq!(gemm_padding(&lopsided, &x), None);
@@ -267,7 +298,7 @@ mod tests {
     #[test]
     fn gradients_equal_burns_autodiff() {
         let device = crate::backend::default_device().autodiff();
-        for conv in layers(&device) {
+        for conv in layers(&device).into_iter().filter(|conv| conv.stride == [1, 1]) {
             let [_, c, _, _] = conv.weight.dims();
             let x = Tensor::<4>::random([2, c, 7, 9], Distribution::Normal(0.0, 1.0), &device).require_grad();
             assert!(gemm_padding(&conv, &x).is_some(), "autodiff on flex takes the matrix path");

@@ -4,14 +4,15 @@
 use burn::module::Module;
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
-use burn::tensor::activation::{leaky_relu, relu};
+use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
-use crate::conv::conv2d;
+use crate::conv::{conv2d, conv2d_act};
+use crate::conv_forward::Activation;
 use crate::densenet::Skips;
-use crate::upsample::{Upsample, upsample_bilinear};
+use crate::upsample::{Upsample, upsample_concat};
 
-const SLOPE: f64 = 0.2;
+const SLOPE: f32 = 0.2;
 
 fn conv3(channels: [usize; 2], device: &Device) -> Conv2d {
     Conv2dConfig::new(channels, [3, 3]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device)
@@ -30,10 +31,9 @@ impl UpBlock {
     }
 
     pub fn forward(&self, x: Tensor<4>, skip: Tensor<4>, mode: Upsample) -> Tensor<4> {
-        let [_, _, h, w] = skip.dims();
-        let x = Tensor::cat(vec![upsample_bilinear(x, [h, w], mode), skip], 1);
-        let x = leaky_relu(conv2d(&self.conv_a, x), SLOPE);
-        leaky_relu(conv2d(&self.conv_b, x), SLOPE)
+        let x = upsample_concat(x, skip, mode);
+        let x = conv2d_act(&self.conv_a, x, Activation::Leaky(SLOPE));
+        conv2d_act(&self.conv_b, x, Activation::Leaky(SLOPE))
     }
 }
 

@@ -8,8 +8,10 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
 use crate::config::DenseNetConfig;
-use crate::conv::conv2d;
+use crate::conv::{conv2d, conv2d_act};
+use crate::conv_forward::Activation;
 use crate::norm_relu::{inference_affine, norm_relu};
+use crate::pool::max_pool2d;
 
 fn conv(channels: [usize; 2], kernel: usize, stride: usize, padding: usize, device: &Device) -> Conv2d {
     Conv2dConfig::new(channels, [kernel, kernel])
@@ -64,6 +66,14 @@ impl DenseBlock {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        match crate::dense_block::forward(self, &x) {
+            Some(out) => out,
+            None => self.forward_layers(x),
+        }
+    }
+
+    /// Layer by layer through Burn's operations (what autodiff and other backends run).
+    pub(crate) fn forward_layers(&self, x: Tensor<4>) -> Tensor<4> {
         let mut features = x;
         for layer in &self.layers {
             let new = layer.forward(features.clone());
@@ -90,8 +100,11 @@ impl Transition {
         }
     }
 
+    /// Pools before the convolution: a 1x1 convolution and an average commute exactly (both
+    /// are linear per pixel, and the bias averages to itself), and the convolution then runs on
+    /// a quarter of the pixels.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        self.pool.forward(conv2d(&self.conv, norm_relu(&self.norm, x)))
+        conv2d(&self.conv, self.pool.forward(norm_relu(&self.norm, x)))
     }
 }
 
@@ -153,12 +166,11 @@ impl DenseNetConfig {
 
 impl DenseNetEncoder {
     pub fn forward(&self, x: Tensor<4>) -> Skips {
-        let x = self.conv0.forward(x);
-        let relu0 = relu(match &self.norm0 {
-            Some(norm) => norm.forward(x),
-            None => x,
-        });
-        let pool0 = self.pool0.forward(relu0.clone());
+        let relu0 = match &self.norm0 {
+            Some(norm) => relu(norm.forward(conv2d(&self.conv0, x))),
+            None => conv2d_act(&self.conv0, x, Activation::Relu),
+        };
+        let pool0 = max_pool2d(&self.pool0, relu0.clone());
         let transition1 = self.transition1.forward(self.denseblock1.forward(pool0.clone()));
         let transition2 = self.transition2.forward(self.denseblock2.forward(transition1.clone()));
         let t3 = self.transition3.forward(self.denseblock3.forward(transition2.clone()));

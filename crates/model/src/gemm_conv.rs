@@ -1,18 +1,20 @@
-//! Stride-1 convolutions as matrix products over the zero-padded image, on plain `f32` slices.
+//! Convolution gradients as matrix products over the zero-padded image, on plain `f32` slices
+//! (the forward is `conv_forward`).
 //!
 //! With the image padded and flattened row by row (padded width `wp`), the input under kernel
 //! tap `(ky, kx)` for every output position is one contiguous window of the flat image, shifted
-//! by `ky * wp + kx`: a matrix with ordinary strides. So the forward is `k * k` matrix products
-//! accumulated into one output, and the weight gradient is `k * k` products whose inner dimension
-//! runs over the whole image. flex lowers the weight gradient to a convolution with the batch as
-//! channels, which becomes one thin matrix product per input channel (about 4x slower for
-//! DenseNet's 3x3 layers here); this form keeps every product large. Each output row carries
-//! `k - 1` padding columns that are computed and then dropped (or, for gradients, zero).
+//! by `ky * wp + kx`: a matrix with ordinary strides. So the weight gradient is `k * k` products
+//! whose inner dimension runs over the whole image. flex lowers the weight gradient to a
+//! convolution with the batch as channels, which becomes one thin matrix product per input
+//! channel (about 4x slower for DenseNet's 3x3 layers here); this form keeps every product
+//! large. Each output row carries `k - 1` padding columns, zero in the spread output gradient.
+//! The input gradient is a forward convolution with the weight transposed and flipped.
 
 use rayon::prelude::*;
 
 /// Shapes of one convolution: `x` is `[batch, channels_in, height, width]`, the weight
-/// `[channels_out, channels_in, kernel, kernel]`, stride and dilation 1, `padding` on every side.
+/// `[channels_out, channels_in, kernel, kernel]`, dilation 1, `padding` on every side. Only the
+/// forward takes a `stride` other than 1 (the gradients assert it).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ConvShape {
     pub batch: usize,
@@ -22,25 +24,26 @@ pub struct ConvShape {
     pub width: usize,
     pub kernel: usize,
     pub padding: usize,
+    pub stride: usize,
 }
 
 impl ConvShape {
     pub fn out_height(&self) -> usize {
-        self.height + 2 * self.padding + 1 - self.kernel
+        (self.height + 2 * self.padding - self.kernel) / self.stride + 1
     }
 
     pub fn out_width(&self) -> usize {
-        self.width + 2 * self.padding + 1 - self.kernel
+        (self.width + 2 * self.padding - self.kernel) / self.stride + 1
     }
 
-    /// Row stride of the padded image (and of the output rows while they are computed).
+    /// Row stride of the padded image (and of the spread output gradient).
     fn padded_width(&self) -> usize {
         self.width + 2 * self.padding
     }
 
     /// The 1x1 unpadded case needs no padded copy: the image itself is the matrix.
     fn is_pointwise(&self) -> bool {
-        self.kernel == 1 && self.padding == 0
+        self.kernel == 1 && self.padding == 0 && self.stride == 1
     }
 
     /// Elements per channel of the padded image: one spare row at the bottom, because the window
@@ -61,6 +64,7 @@ impl ConvShape {
     /// The convolution that gives the input gradient: the output gradient convolved with the
     /// weight transposed and flipped, padded by `kernel - 1 - padding`.
     pub fn transposed(&self) -> ConvShape {
+        assert_eq!(self.stride, 1, "gradients of strided convolutions are Burn's");
         ConvShape {
             batch: self.batch,
             channels_in: self.channels_out,
@@ -69,33 +73,33 @@ impl ConvShape {
             width: self.out_width(),
             kernel: self.kernel,
             padding: self.kernel - 1 - self.padding,
+            stride: 1,
         }
     }
 }
 
 /// A pointer that rayon tasks may share to write disjoint parts of one buffer.
 #[derive(Clone, Copy)]
-struct SharedMut(*mut f32);
+pub(crate) struct SharedMut(pub(crate) *mut f32);
 unsafe impl Send for SharedMut {}
 unsafe impl Sync for SharedMut {}
 
 impl SharedMut {
     /// Through a method, so that closures capture the whole (Send) wrapper, not the raw field.
-    fn at(self, offset: usize) -> *mut f32 {
+    pub(crate) fn at(self, offset: usize) -> *mut f32 {
         self.0.wrapping_add(offset)
     }
 }
 
-/// Columns per task: at least two tasks per thread, and no wider than `MAX_COLUMNS`, so that a
-/// task's slice of the output (or its window of the image) stays in cache across the `k * k`
-/// products that revisit it.
+/// Columns per weight-gradient task, so that a task's window of the image stays in cache across
+/// the `k * k` products that revisit it.
 const MAX_COLUMNS: usize = 2048;
 
-/// Splits `n` columns into ranges of at most `MAX_COLUMNS` and about two per thread, none
-/// narrower than `min` unless `n` is.
-fn column_chunks(n: usize, min: usize) -> Vec<std::ops::Range<usize>> {
+/// Splits `n` columns into ranges of at most `max` and about two per thread, none narrower than
+/// `min` unless `n` is.
+pub(crate) fn column_chunks(n: usize, min: usize, max: usize) -> Vec<std::ops::Range<usize>> {
     let want = (2 * rayon::current_num_threads()).max(1);
-    let size = n.div_ceil(want).clamp(min, MAX_COLUMNS.max(min)).min(n.max(1));
+    let size = n.div_ceil(want).clamp(min, max.max(min)).min(n.max(1));
     (0..n).step_by(size).map(|start| start..(start + size).min(n)).collect()
 }
 
@@ -126,7 +130,7 @@ fn pad_image(image: &[f32], s: &ConvShape, channels: usize) -> Vec<f32> {
 
 /// `dst[m, n] (+)= lhs[m, k] * rhs[k, n]` with element strides (column, row) for each matrix.
 #[allow(clippy::too_many_arguments)]
-unsafe fn matmul(
+pub(crate) unsafe fn matmul(
     [m, n, k]: [usize; 3],
     dst: *mut f32,
     [dst_cs, dst_rs]: [usize; 2],
@@ -162,62 +166,6 @@ unsafe fn matmul(
     }
 }
 
-/// The convolution of `x` ([batch, channels_in, height, width]) with `weight`
-/// ([channels_out, channels_in, kernel, kernel]) plus `bias`: [batch, channels_out, out_height,
-/// out_width].
-pub fn forward(x: &[f32], weight: &[f32], bias: Option<&[f32]>, s: &ConvShape) -> Vec<f32> {
-    let (c, o, k) = (s.channels_in, s.channels_out, s.kernel);
-    let (ho, wo, wp, n, len) = (s.out_height(), s.out_width(), s.padded_width(), s.columns(), s.padded_len());
-    assert_eq!(x.len(), s.batch * c * s.height * s.width, "conv input size");
-    assert_eq!(weight.len(), o * c * k * k, "conv weight size");
-    let mut out = vec![0.0f32; s.batch * o * ho * wo];
-    // Pointwise outputs need no trimming: the products write straight into `out`.
-    let mut wide = if s.is_pointwise() { Vec::new() } else { vec![0.0f32; o * n] };
-    for (b, image) in x.chunks_exact(c * s.height * s.width).enumerate() {
-        let padded;
-        let flat = if s.is_pointwise() {
-            image
-        } else {
-            padded = pad_image(image, s, c);
-            &padded
-        };
-        let dst = SharedMut(if s.is_pointwise() { out[b * o * n..].as_mut_ptr() } else { wide.as_mut_ptr() });
-        column_chunks(n, 256).into_par_iter().for_each(|cols| {
-            for tap in 0..k * k {
-                let shift = (tap / k) * wp + tap % k;
-                // SAFETY: chunks cover disjoint columns of the [o, n] destination; the window of
-                // `flat` ends at most at `padded_len` (see `ConvShape::padded_len`).
-                unsafe {
-                    matmul(
-                        [o, cols.len(), c],
-                        dst.at(cols.start),
-                        [1, n],
-                        tap > 0,
-                        weight.as_ptr().add(tap),
-                        [k * k, c * k * k],
-                        flat.as_ptr().add(shift + cols.start),
-                        [1, len],
-                    );
-                }
-            }
-        });
-        let image_out = &mut out[b * o * ho * wo..][..o * ho * wo];
-        if !s.is_pointwise() {
-            image_out.par_chunks_mut(ho * wo).zip(wide.par_chunks(n)).for_each(|(dst, src)| {
-                for (row, dst_row) in dst.chunks_exact_mut(wo).enumerate() {
-                    dst_row.copy_from_slice(&src[row * wp..][..wo]);
-                }
-            });
-        }
-        if let Some(bias) = bias {
-            image_out.par_chunks_mut(ho * wo).zip(bias.par_iter()).for_each(|(plane, &v)| {
-                plane.iter_mut().for_each(|e| *e += v);
-            });
-        }
-    }
-    out
-}
-
 /// The gradient of the input: `grad` ([batch, channels_out, out_height, out_width]) convolved
 /// with the weight transposed and flipped.
 pub fn input_grad(grad: &[f32], weight: &[f32], s: &ConvShape) -> Vec<f32> {
@@ -230,13 +178,14 @@ pub fn input_grad(grad: &[f32], weight: &[f32], s: &ConvShape) -> Vec<f32> {
             }
         }
     }
-    forward(grad, &flipped, None, &s.transposed())
+    crate::conv_forward::forward(grad, &flipped, None, &s.transposed())
 }
 
 /// The gradient of the weight: [channels_out, channels_in, kernel, kernel]. The inner dimension
 /// (every output position of every image) is split across threads, each summing into its own
 /// buffer, because the product's outer dimensions are too small to split well.
 pub fn weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
+    assert_eq!(s.stride, 1, "gradients of strided convolutions are Burn's");
     let (c, o, k) = (s.channels_in, s.channels_out, s.kernel);
     let (ho, wo, wp, n, len) = (s.out_height(), s.out_width(), s.padded_width(), s.columns(), s.padded_len());
     assert_eq!(x.len(), s.batch * c * s.height * s.width, "conv input size");
@@ -258,7 +207,7 @@ pub fn weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
             (&padded[..], &wide[..])
         };
         // Each rayon split sums its column ranges into one buffer of its own.
-        let image_total = column_chunks(n, 512)
+        let image_total = column_chunks(n, 512, MAX_COLUMNS)
             .into_par_iter()
             .fold(
                 || vec![0.0f32; size],
@@ -297,10 +246,11 @@ pub fn weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::conv_forward::forward;
 
     /// Direct convolution by its definition, for reference.
     fn naive(x: &[f32], weight: &[f32], s: &ConvShape) -> Vec<f32> {
-        let (c, o, k, p) = (s.channels_in, s.channels_out, s.kernel, s.padding as isize);
+        let (c, o, k, p, st) = (s.channels_in, s.channels_out, s.kernel, s.padding as isize, s.stride as isize);
         let (h, w, ho, wo) = (s.height, s.width, s.out_height(), s.out_width());
         let mut out = vec![0.0f32; s.batch * o * ho * wo];
         for b in 0..s.batch {
@@ -311,7 +261,8 @@ mod tests {
                         for ic in 0..c {
                             for ky in 0..k {
                                 for kx in 0..k {
-                                    let (y, xx) = (i as isize + ky as isize - p, j as isize + kx as isize - p);
+                                    let (y, xx) =
+                                        (i as isize * st + ky as isize - p, j as isize * st + kx as isize - p);
                                     if y >= 0 && xx >= 0 && (y as usize) < h && (xx as usize) < w {
                                         acc += (x[((b * c + ic) * h + y as usize) * w + xx as usize]
                                             * weight[((oc * c + ic) * k + ky) * k + kx])
@@ -343,15 +294,30 @@ mod tests {
     }
 
     const SHAPES: [ConvShape; 4] = [
-        ConvShape { batch: 2, channels_in: 5, channels_out: 3, height: 7, width: 9, kernel: 3, padding: 1 },
-        ConvShape { batch: 1, channels_in: 4, channels_out: 6, height: 5, width: 4, kernel: 1, padding: 0 },
-        ConvShape { batch: 2, channels_in: 3, channels_out: 2, height: 6, width: 8, kernel: 3, padding: 0 },
-        ConvShape { batch: 1, channels_in: 2, channels_out: 3, height: 6, width: 5, kernel: 5, padding: 2 },
+        ConvShape { batch: 2, channels_in: 5, channels_out: 3, height: 7, width: 9, kernel: 3, padding: 1, stride: 1 },
+        ConvShape { batch: 1, channels_in: 4, channels_out: 6, height: 5, width: 4, kernel: 1, padding: 0, stride: 1 },
+        ConvShape { batch: 2, channels_in: 3, channels_out: 2, height: 6, width: 8, kernel: 3, padding: 0, stride: 1 },
+        ConvShape { batch: 1, channels_in: 2, channels_out: 3, height: 6, width: 5, kernel: 5, padding: 2, stride: 1 },
+    ];
+
+    /// Forward-only shapes: strided, like DenseNet's 7x7 stem.
+    const STRIDED: [ConvShape; 2] = [
+        ConvShape {
+            batch: 2,
+            channels_in: 3,
+            channels_out: 5,
+            height: 11,
+            width: 10,
+            kernel: 7,
+            padding: 3,
+            stride: 2,
+        },
+        ConvShape { batch: 1, channels_in: 2, channels_out: 3, height: 9, width: 9, kernel: 3, padding: 0, stride: 3 },
     ];
 
     #[test]
     fn forward_matches_the_definition() {
-        for s in SHAPES {
+        for s in SHAPES.into_iter().chain(STRIDED) {
             let x = values(s.batch * s.channels_in * s.height * s.width, 1);
             let weight = values(s.channels_out * s.channels_in * s.kernel * s.kernel, 2);
             let bias = values(s.channels_out, 3);

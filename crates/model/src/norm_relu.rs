@@ -6,36 +6,12 @@
 //! shift followed by a clamp, which flex runs here as a single pass. Anywhere else (autodiff,
 //! other backends or dtypes) it is Burn's `BatchNorm::forward` and `relu`.
 
-use burn::backend::tensor::FloatTensor;
-use burn::backend::{Backend, DispatchDevice, Flex, backend_extension};
 use burn::nn::BatchNorm;
+use burn::tensor::Tensor;
 use burn::tensor::activation::relu;
-use burn::tensor::{DType, Tensor, TensorData};
-use burn_flex::FlexTensor;
 use rayon::prelude::*;
 
-use crate::conv::contiguous;
-
-#[backend_extension(Flex)]
-pub trait NormReluBackend: Backend {
-    /// `max(0, x * scale[c] + shift[c])` for `x` [batch, channels, ...].
-    fn scale_shift_relu(x: FloatTensor<Self>, scale: FloatTensor<Self>, shift: FloatTensor<Self>) -> FloatTensor<Self>;
-}
-
-impl NormReluBackend for Flex {
-    fn scale_shift_relu(x: FlexTensor, scale: FlexTensor, shift: FlexTensor) -> FlexTensor {
-        let (x, scale, shift) = (contiguous(x), contiguous(scale), contiguous(shift));
-        let dims = x.layout().shape().to_vec();
-        let plane = dims[2..].iter().product();
-        let out = scale_shift_relu_slices(
-            x.as_slice().expect("contiguous f32"),
-            plane,
-            scale.as_slice().expect("contiguous f32"),
-            shift.as_slice().expect("contiguous f32"),
-        );
-        FlexTensor::from_data(TensorData::new(out, dims))
-    }
-}
+use crate::backend::{flex_f32, flex_tensor, from_flex, slice};
 
 /// The kernel: `x` holds planes of `plane` elements, channel after channel, image after image.
 fn scale_shift_relu_slices(x: &[f32], plane: usize, scale: &[f32], shift: &[f32]) -> Vec<f32> {
@@ -63,17 +39,19 @@ pub fn inference_affine(norm: &BatchNorm) -> (Tensor<1>, Tensor<1>) {
 
 /// `relu(norm.forward(x))`, in one pass on flex outside autodiff.
 pub fn norm_relu<const D: usize>(norm: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
-    let plain_flex = matches!(x.device().as_dispatch(), DispatchDevice::Flex(_));
-    if !plain_flex || x.dtype() != DType::F32 || norm.gamma.val().dtype() != DType::F32 {
+    let Some(input) = flex_f32(&x) else {
         return relu(norm.forward(x));
-    }
+    };
     let (scale, shift) = inference_affine(norm);
-    type Dispatch = burn::backend::Dispatch;
-    Tensor::from_dispatch(<Dispatch as NormReluBackend>::scale_shift_relu(
-        x.into_dispatch(),
-        scale.into_dispatch(),
-        shift.into_dispatch(),
-    ))
+    match (flex_f32(&scale), flex_f32(&shift)) {
+        (Some(scale), Some(shift)) => {
+            let dims = input.layout().shape().to_vec();
+            let plane = dims[2..].iter().product();
+            let out = scale_shift_relu_slices(slice(&input), plane, slice(&scale), slice(&shift));
+            from_flex(flex_tensor(out, &dims))
+        }
+        _ => relu(norm.forward(x)),
+    }
 }
 
 #[cfg(test)]
