@@ -28,6 +28,19 @@ pub(crate) fn flex_f32<const D: usize>(x: &Tensor<D>) -> Option<FlexTensor> {
     }
 }
 
+/// `Some(tracked)` when `device` is flex, plain or under autodiff; `None` for other backends.
+pub(crate) fn flex_kind(device: &Device) -> Option<bool> {
+    #[allow(unreachable_patterns)]
+    match device.as_dispatch().clone() {
+        burn::backend::DispatchDevice::Flex(_) => Some(false),
+        #[cfg(feature = "autodiff")]
+        d @ burn::backend::DispatchDevice::Autodiff(_) => {
+            matches!(d.inner(), burn::backend::DispatchDevice::Flex(_)).then_some(true)
+        }
+        _ => None,
+    }
+}
+
 /// A plain flex tensor back as a `Tensor`.
 pub(crate) fn from_flex<const D: usize>(t: FlexTensor) -> Tensor<D> {
     Tensor::from_dispatch(DispatchTensor {

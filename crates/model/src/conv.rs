@@ -8,7 +8,7 @@
 //! everywhere within float rounding.
 
 use burn::backend::tensor::FloatTensor;
-use burn::backend::{Backend, DispatchDevice, Flex, backend_extension};
+use burn::backend::{Backend, Flex, backend_extension};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2d;
 use burn::tensor::activation::{leaky_relu, relu};
@@ -192,13 +192,8 @@ pub(crate) fn symmetric_padding(padding: &PaddingConfig2d) -> Option<usize> {
 /// (directly, or under autodiff with stride 1), f32, dilation 1, one group, a square kernel,
 /// equal padding on every side no larger than `kernel - 1`.
 fn gemm_padding(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize)> {
-    #[allow(unreachable_patterns)]
-    let (on_flex, tracked) = match x.device().as_dispatch().clone() {
-        DispatchDevice::Flex(_) => (true, false),
-        #[cfg(feature = "autodiff")]
-        device @ DispatchDevice::Autodiff(_) => (matches!(device.inner(), DispatchDevice::Flex(_)), true),
-        _ => (false, false),
-    };
+    let kind = crate::backend::flex_kind(&x.device());
+    let (on_flex, tracked) = (kind.is_some(), kind == Some(true));
     let [k, k2] = conv.kernel_size;
     let padding = symmetric_padding(&conv.padding)?;
     let [stride, stride2] = conv.stride;

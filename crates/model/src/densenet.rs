@@ -45,10 +45,10 @@ impl DenseLayer {
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let x = conv2d(&self.conv1, norm_relu(&self.norm1, x));
         let x = match &self.norm2 {
-            Some(norm) => norm.forward(x),
-            None => x,
+            Some(norm) => norm_relu(norm, x),
+            None => relu(x),
         };
-        conv2d(&self.conv2, relu(x))
+        conv2d(&self.conv2, x)
     }
 }
 
@@ -167,7 +167,7 @@ impl DenseNetConfig {
 impl DenseNetEncoder {
     pub fn forward(&self, x: Tensor<4>) -> Skips {
         let relu0 = match &self.norm0 {
-            Some(norm) => relu(norm.forward(conv2d(&self.conv0, x))),
+            Some(norm) => norm_relu(norm, conv2d(&self.conv0, x)),
             None => conv2d_act(&self.conv0, x, Activation::Relu),
         };
         let pool0 = max_pool2d(&self.pool0, relu0.clone());

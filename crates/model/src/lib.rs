@@ -2,6 +2,7 @@
 //! DenseDepth's skip-connection decoder, its loss, the depth scale, and PyTorch weight import.
 
 pub mod backend;
+pub mod batch_norm_train;
 pub mod bundle;
 pub mod config;
 pub mod conv;

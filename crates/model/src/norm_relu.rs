@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use crate::backend::{flex_f32, flex_tensor, from_flex, slice};
 
 /// The kernel: `x` holds planes of `plane` elements, channel after channel, image after image.
-fn scale_shift_relu_slices(x: &[f32], plane: usize, scale: &[f32], shift: &[f32]) -> Vec<f32> {
+pub(crate) fn scale_shift_relu_slices(x: &[f32], plane: usize, scale: &[f32], shift: &[f32]) -> Vec<f32> {
     let channels = scale.len();
     let mut out = vec![0.0f32; x.len()];
     if plane == 0 || channels == 0 {
@@ -37,8 +37,12 @@ pub fn inference_affine(norm: &BatchNorm) -> (Tensor<1>, Tensor<1>) {
     (scale, shift)
 }
 
-/// `relu(norm.forward(x))`, in one pass on flex outside autodiff.
+/// `relu(norm.forward(x))`: in one pass on flex outside autodiff, as one fused operation in
+/// training on flex (`batch_norm_train`), through Burn's operations elsewhere.
 pub fn norm_relu<const D: usize>(norm: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
+    if let Some(y) = crate::batch_norm_train::train_norm_relu(norm, &x) {
+        return y;
+    }
     let Some(input) = flex_f32(&x) else {
         return relu(norm.forward(x));
     };
