@@ -191,7 +191,7 @@ pub(crate) fn symmetric_padding(padding: &PaddingConfig2d) -> Option<usize> {
 /// The padding and stride of `conv` when the matrix-product path can run it on `x`: flex
 /// (directly, or under autodiff with stride 1), f32, dilation 1, one group, a square kernel,
 /// equal padding on every side no larger than `kernel - 1`.
-fn gemm_padding(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize)> {
+pub(crate) fn gemm_padding(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize)> {
     let kind = crate::backend::flex_kind(&x.device());
     let (on_flex, tracked) = (kind.is_some(), kind == Some(true));
     let [k, k2] = conv.kernel_size;
@@ -214,8 +214,12 @@ pub fn conv2d_act(conv: &Conv2d, x: Tensor<4>, activation: Activation) -> Tensor
     let Some((padding, stride)) = gemm_padding(conv, &x) else {
         return activate(conv.forward(x), activation);
     };
-    if let (Some(input), Some(weight)) = (flex_f32(&x), flex_f32(&conv.weight.val())) {
-        let bias = conv.bias.as_ref().and_then(|b| flex_f32(&b.val()));
+    // A bias that is not plain f32 flex sends the layer to the autodiff path, never drops out.
+    let bias = match &conv.bias {
+        Some(b) => flex_f32(&b.val()).map(Some),
+        None => Some(None),
+    };
+    if let (Some(input), Some(weight), Some(bias)) = (flex_f32(&x), flex_f32(&conv.weight.val()), bias) {
         return from_flex(flex_conv(input, weight, bias, [padding, stride], activation));
     }
     type D = burn::backend::Dispatch;
@@ -234,7 +238,7 @@ fn activate(x: Tensor<4>, activation: Activation) -> Tensor<4> {
     match activation {
         Activation::Identity => x,
         Activation::Relu => relu(x),
-        Activation::Leaky(slope) => leaky_relu(x, slope as f64),
+        Activation::Leaky(slope) => leaky_relu(x, slope),
     }
 }
 

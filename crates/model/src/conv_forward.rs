@@ -39,8 +39,8 @@ pub struct Prologue<'a> {
 pub enum Activation {
     Identity,
     Relu,
-    /// LeakyReLU with this negative slope.
-    Leaky(f32),
+    /// LeakyReLU with this negative slope (f64 as Burn's `leaky_relu` takes it).
+    Leaky(f64),
 }
 
 /// `activation(y * scale[o] + shift[o])` on each output channel `o`, where each is optional.
@@ -67,6 +67,7 @@ impl<'a> Epilogue<'a> {
             Activation::Identity => row.iter_mut().for_each(|v| *v = *v * scale + shift),
             Activation::Relu => row.iter_mut().for_each(|v| *v = (*v * scale + shift).max(0.0)),
             Activation::Leaky(slope) => row.iter_mut().for_each(|v| {
+                let slope = slope as f32;
                 let y = *v * scale + shift;
                 *v = if y >= 0.0 { y } else { y * slope };
             }),
@@ -150,7 +151,7 @@ pub fn forward_image(
     assert_eq!(image.len(), c * s.height * s.width, "conv input size");
     assert_eq!(weight.len(), o * c * kk, "conv weight size");
     assert_eq!(out.len(), o * positions, "conv output size");
-    let in_place = s.kernel == 1 && s.padding == 0 && s.stride == 1 && prologue.is_none();
+    let in_place = s.is_pointwise() && prologue.is_none();
     let block = (GATHER_ROWS / kk).clamp(1, c.max(1));
     let dst = SharedMut(out.as_mut_ptr());
     let max = if in_place { POINTWISE_COLUMNS } else { GATHER_COLUMNS };
@@ -291,7 +292,7 @@ mod tests {
                             if y >= 0.0 {
                                 y
                             } else {
-                                y * slope
+                                y * slope as f32
                             }
                         }
                     };

@@ -12,7 +12,7 @@ use crate::conv_forward::Activation;
 use crate::densenet::Skips;
 use crate::upsample::{Upsample, upsample_concat};
 
-const SLOPE: f32 = 0.2;
+const SLOPE: f64 = 0.2;
 
 fn conv3(channels: [usize; 2], device: &Device) -> Conv2d {
     Conv2dConfig::new(channels, [3, 3]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device)

@@ -8,13 +8,12 @@
 //! the bottleneck in one reused buffer with norm2 (folded or not) + ReLU as the epilogue, and
 //! writes the 3x3 convolution's output straight into its own channels of the stack.
 
-use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2d;
 use burn::tensor::Tensor;
 use burn_flex::FlexTensor;
 
 use crate::backend::{flex_f32, flex_tensor, from_flex, slice};
-use crate::conv::symmetric_padding;
+use crate::conv::gemm_padding;
 use crate::conv_forward::{Activation, Epilogue, Prologue, forward_image};
 use crate::densenet::{DenseBlock, DenseLayer};
 use crate::gemm_conv::ConvShape;
@@ -34,24 +33,22 @@ struct Layer {
     kernel: usize,
 }
 
-/// Whether `conv` is stride 1, dilation 1, one group, square `k` x `k` with `(k - 1) / 2`
-/// padding on every side: the shapes the block kernel handles.
-fn same_size(conv: &Conv2d) -> Option<usize> {
-    let [k, k2] = conv.kernel_size;
-    let padding = symmetric_padding(&conv.padding).or(match conv.padding {
-        PaddingConfig2d::Same => Some(k / 2),
+/// The kernel of `conv` when the matrix-product path runs it on `x`'s images keeping their size
+/// (stride 1, `(k - 1) / 2` padding): the shapes the block kernel handles.
+fn same_size(conv: &Conv2d, x: &Tensor<4>) -> Option<usize> {
+    let k = conv.kernel_size[0];
+    match gemm_padding(conv, x)? {
+        (padding, 1) if 2 * padding + 1 == k => Some(k),
         _ => None,
-    })?;
-    let plain = conv.stride == [1, 1] && conv.dilation == [1, 1] && conv.groups == 1 && k == k2;
-    (plain && k % 2 == 1 && padding == k / 2).then_some(k)
+    }
 }
 
 impl Layer {
-    fn new(layer: &DenseLayer) -> Option<Layer> {
-        if same_size(&layer.conv1)? != 1 {
+    fn new(layer: &DenseLayer, x: &Tensor<4>) -> Option<Layer> {
+        if same_size(&layer.conv1, x)? != 1 {
             return None;
         }
-        let kernel = same_size(&layer.conv2)?;
+        let kernel = same_size(&layer.conv2, x)?;
         let (scale1, shift1) = inference_affine(&layer.norm1);
         let conv1 = flex_f32(&layer.conv1.weight.val())?;
         let bias1 = match &layer.conv1.bias {
@@ -94,7 +91,7 @@ impl Layer {
 /// shapes; `None` otherwise (the caller then runs Burn's operations).
 pub(crate) fn forward(block: &DenseBlock, x: &Tensor<4>) -> Option<Tensor<4>> {
     let input = flex_f32(x)?;
-    let layers = block.layers.iter().map(Layer::new).collect::<Option<Vec<_>>>()?;
+    let layers = block.layers.iter().map(|layer| Layer::new(layer, x)).collect::<Option<Vec<_>>>()?;
     let [n, c0, h, w] = x.dims();
     let hw = h * w;
     // Each layer must read exactly the channels stacked before it.

@@ -42,7 +42,7 @@ impl ConvShape {
     }
 
     /// The 1x1 unpadded case needs no padded copy: the image itself is the matrix.
-    fn is_pointwise(&self) -> bool {
+    pub(crate) fn is_pointwise(&self) -> bool {
         self.kernel == 1 && self.padding == 0 && self.stride == 1
     }
 
