@@ -1,7 +1,7 @@
-"""Peer for `cargo xtask bench model`: the same DenseDepth architecture in PyTorch on the CPU.
-Not part of CI. Needs: pip install torch torchvision.
+"""Peer for `cargo xtask bench model`: the same DenseDepth architecture in PyTorch, on the CPU or
+(--device cuda) the first CUDA GPU. Not part of CI. Needs: pip install torch torchvision.
 
-Prints one line per batch size: batch=B forward_ms=X train_ms=Y (medians; the train step is
+Prints one line per batch size: batch=B forward_ms=X train_ms=Y device=D (medians; the train step is
 forward, the DenseDepth loss, backward and an Adam step, as in the Burn benchmark).
 """
 import argparse, statistics, time
@@ -12,7 +12,12 @@ ap = argparse.ArgumentParser()
 ap.add_argument("--growth", type=int); ap.add_argument("--blocks"); ap.add_argument("--init", type=int)
 ap.add_argument("--bn-size", type=int); ap.add_argument("--height", type=int); ap.add_argument("--width", type=int)
 ap.add_argument("--batches"); ap.add_argument("--reps", type=int, default=3); ap.add_argument("--threads", type=int)
+ap.add_argument("--device", default="cpu")
 a = ap.parse_args()
+# A GPU run of Burn is compared with PyTorch on CUDA when there is CUDA, else on the CPU.
+dev = torch.device(a.device if a.device == "cpu" or torch.cuda.is_available() else "cpu")
+# cuDNN picks its fastest convolution per shape, as Burn's GPU backends autotune theirs.
+torch.backends.cudnn.benchmark = True
 torch.set_num_threads(a.threads)
 blocks = tuple(int(x) for x in a.blocks.split(","))
 
@@ -49,7 +54,7 @@ def gauss(ws=11, sigma=1.5):
     return (g[:, None] * g[None, :])[None, None]
 
 def loss_fn(p, t, L=990.0):
-    w = gauss(); p, t = p / L, t / L
+    w = gauss().to(p.device); p, t = p / L, t / L
     mp, mt = F.conv2d(p, w), F.conv2d(t, w)
     spp = F.conv2d(p * p, w) - mp ** 2; stt = F.conv2d(t * t, w) - mt ** 2; spt = F.conv2d(p * t, w) - mp * mt
     C1, C2 = 0.01 ** 2, 0.03 ** 2
@@ -60,22 +65,25 @@ def loss_fn(p, t, L=990.0):
     edge = ((dy(p) - dy(t)).abs().sum() + (dx(p) - dx(t)).abs().sum()) / n
     return torch.clamp((1 - ssim) / 2, 0, 1) + edge + 0.1 * (p - t).abs().mean()
 
+def sync():
+    if dev.type == "cuda": torch.cuda.synchronize()
+
 def timed(f, reps):
-    f(); ts = []
+    f(); sync(); ts = []
     for _ in range(reps):
-        t = time.perf_counter(); f(); ts.append((time.perf_counter() - t) * 1e3)
+        t = time.perf_counter(); f(); sync(); ts.append((time.perf_counter() - t) * 1e3)
     return statistics.median(ts)
 
 for b in (int(x) for x in a.batches.split(",")):
-    m = Model()
-    x = torch.rand(b, 3, a.height, a.width)
+    m = Model().to(dev)
+    x = torch.rand(b, 3, a.height, a.width, device=dev)
     m.eval()
     with torch.no_grad():
         fwd = timed(lambda: m(x), a.reps)
     m.train()
     opt = torch.optim.Adam(m.parameters(), lr=1e-4)
-    target = 10 + 990 * torch.rand(b, 1, a.height // 2, a.width // 2)
+    target = 10 + 990 * torch.rand(b, 1, a.height // 2, a.width // 2, device=dev)
     def step():
         opt.zero_grad(); loss_fn(m(x), target).backward(); opt.step()
     tr = timed(step, a.reps)
-    print(f"batch={b} forward_ms={fwd:.1f} train_ms={tr:.1f}", flush=True)
+    print(f"batch={b} forward_ms={fwd:.1f} train_ms={tr:.1f} device={dev.type}", flush=True)

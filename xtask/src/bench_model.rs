@@ -1,5 +1,6 @@
-//! Model benchmark: median forward and train-step milliseconds on the CPU (flex), batch 1 and 4,
-//! beside PyTorch running the same architecture with the same thread count, in one run.
+//! Model benchmark: median forward and train-step milliseconds, batch 1 and 4, beside PyTorch
+//! running the same architecture in the same run: on the CPU (flex) with the same thread count,
+//! or on a GPU (`--devices cuda`, or several for the data-parallel train step).
 
 use std::process::Command;
 
@@ -7,6 +8,8 @@ use anyhow::{Context, Result, bail};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Distribution, Tensor};
 use model::{DenseDepthConfig, DenseNetConfig, DepthLossConfig};
+use train::data::{DepthBatcher, DepthItem};
+use train::parallel::DataParallel;
 
 use crate::timing::time_ms;
 
@@ -31,6 +34,11 @@ pub struct Args {
     /// Measure the forward pass only (for profiling).
     #[arg(long)]
     forward_only: bool,
+    /// Where Burn runs: flex (default), wgpu, cuda, cuda:N; several, comma-separated, share each
+    /// training batch (data parallel; the forward pass runs on the first). With a GPU the peer
+    /// runs on PyTorch's first CUDA device.
+    #[arg(long, default_value = "flex")]
+    devices: String,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -41,10 +49,22 @@ pub fn run(args: Args) -> Result<()> {
     let config = DenseDepthConfig::new(encoder.clone());
     let threads = rayon::current_num_threads();
     let (h, w) = (args.height, args.width);
-    println!("DenseDepth-{} at {h}x{w}, {threads} threads, median of {} runs", args.preset, args.reps);
+    let devices = model::backend::devices(&args.devices).map_err(anyhow::Error::msg)?;
+    let device = devices[0].clone();
+    let on_cpu = args.devices == "flex";
+    let burn_name = if on_cpu { "Burn flex".to_string() } else { format!("Burn {}", args.devices) };
+    println!(
+        "DenseDepth-{} at {h}x{w} on {}, {threads} threads, median of {} runs",
+        args.preset, args.devices, args.reps
+    );
+    // GPU work is queued: a timed run ends when every device has finished it.
+    let sync = || {
+        for d in &devices {
+            d.sync().expect("device failed");
+        }
+    };
     let mut rows = Vec::new();
     for &batch in &args.batches {
-        let device = model::backend::default_device();
         // Inference as `infer` runs it: eval mode, no autodiff, BatchNorms folded.
         let net = config.init(&device).folded();
         let images = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &device);
@@ -65,21 +85,44 @@ pub fn run(args: Args) -> Result<()> {
             rows.push((batch, forward, f64::NAN));
             continue;
         }
-        let train_device = device.autodiff();
+        let train_device = device.clone().autodiff();
         let mut net = config.init(&train_device);
         let mut optim = AdamConfig::new().init();
-        let images = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &train_device);
-        let target = Tensor::<4>::random([batch, 1, h / 2, w / 2], Distribution::Uniform(10.0, 1000.0), &train_device);
         let loss_config = DepthLossConfig::new();
-        let step = time_ms(args.reps, || {
-            let loss = loss_config.forward(net.forward(images.clone()), target.clone()).total;
-            let grads = GradientsParams::from_grads(loss.backward(), &net);
-            net = optim.step(1e-4, net.clone(), grads);
-        });
+        let step = if devices.len() == 1 {
+            let images = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &train_device);
+            let target =
+                Tensor::<4>::random([batch, 1, h / 2, w / 2], Distribution::Uniform(10.0, 1000.0), &train_device);
+            time_ms(args.reps, || {
+                let loss = loss_config.forward(net.forward(images.clone()), target.clone()).total;
+                let grads = GradientsParams::from_grads(loss.backward(), &net);
+                net = optim.step(1e-4, net.clone(), grads);
+                sync();
+            })
+        } else {
+            // The training loop's own data parallelism, on a batch of random samples (every
+            // pixel useful, so the masked loss is the loss above).
+            let batcher = DepthBatcher { input_hw: [h, w], mask: vec![1.0; h / 2 * (w / 2)] };
+            let parallel = DataParallel::new(&devices, batcher, loss_config.clone())?;
+            let mut rng = dataset::rng::SplitMix64::for_item(7, batch as u64);
+            let items: Vec<DepthItem> = (0..batch)
+                .map(|_| DepthItem {
+                    image: (0..3 * h * w).map(|_| rng.unit() as f32).collect(),
+                    depth: (0..h / 2 * (w / 2)).map(|_| 10.0 + 990.0 * rng.unit() as f32).collect(),
+                })
+                .collect();
+            time_ms(args.reps, || {
+                let step = parallel.step(&net, items.clone()).expect("training step");
+                net = optim.step(1e-4, net.clone(), step.grads);
+                sync();
+            })
+        };
+        println!("batch {batch}: train step {step:.0} ms, {:.1} images/s", batch as f64 * 1e3 / step);
         rows.push((batch, forward, step));
     }
 
     let mut peer = Vec::new();
+    let mut peer_device = String::from("cpu");
     if args.python != "none" {
         let script = concat!(env!("CARGO_MANIFEST_DIR"), "/peers/densedepth_torch.py");
         let [g, i, bn] = [encoder.growth_rate, encoder.num_init_features, encoder.bn_size];
@@ -99,6 +142,7 @@ pub fn run(args: Args) -> Result<()> {
             ])
             .args(["--height", &h.to_string(), "--width", &w.to_string(), "--batches", &batches])
             .args(["--reps", &args.reps.to_string(), "--threads", &threads.to_string()])
+            .args(["--device", if on_cpu { "cpu" } else { "cuda" }])
             .output()
             .with_context(|| format!("running {} {script}", args.python))?;
         if !out.status.success() {
@@ -111,12 +155,16 @@ pub fn run(args: Args) -> Result<()> {
             if let (Some(batch), Some(f), Some(t)) = (field("batch="), field("forward_ms="), field("train_ms=")) {
                 peer.push((batch as usize, f, t));
             }
+            if let Some(d) = line.split_whitespace().find_map(|w| w.strip_prefix("device=")) {
+                peer_device = d.to_string();
+            }
         }
     }
 
     println!();
+    let peer_name = if peer_device == "cpu" { "PyTorch".to_string() } else { format!("PyTorch {peer_device}") };
     println!(
-        "| batch | Burn flex forward ms | PyTorch forward ms | ratio | Burn flex train step ms | PyTorch train step ms | ratio |"
+        "| batch | {burn_name} forward ms | {peer_name} forward ms | ratio | {burn_name} train step ms | {peer_name} train step ms | ratio |"
     );
     println!("|---:|---:|---:|---:|---:|---:|---:|");
     for (batch, f, t) in rows {

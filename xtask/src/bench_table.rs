@@ -105,8 +105,13 @@ pub fn run(args: Args) -> Result<()> {
         bail!("need at least one preset, one size and one epoch");
     }
     let backends = args.backends.clone().unwrap_or_else(|| {
-        // wgpu is there when the build has it (`cargo xtask` builds with `model/wgpu`).
-        ["flex", "wgpu"].iter().filter(|b| model::backend::device(b).is_ok()).map(|b| b.to_string()).collect()
+        // wgpu and cuda are there when the build has them and they start (`cargo xtask` builds
+        // with `model/wgpu`; a build with `model/cuda` on an NVIDIA machine adds cuda).
+        ["flex", "wgpu", "cuda"]
+            .iter()
+            .filter(|b| model::backend::working_device(b).is_ok())
+            .map(|b| b.to_string())
+            .collect()
     });
     let devices: Vec<(String, burn::tensor::Device)> = backends
         .iter()

@@ -73,7 +73,7 @@ enum Command {
 }
 
 fn bench(bundle: PathBuf, image: Option<PathBuf>, device: String, repeats: usize) -> Result<()> {
-    let dev = model::backend::device(&device).map_err(anyhow::Error::msg)?;
+    let dev = model::backend::working_device(&device).map_err(anyhow::Error::msg)?;
     let predictor = Predictor::load(&bundle, &dev)?;
     let reference = predictor.reference.as_ref().map(sensor::io::encode_png_rgb);
     let frame = match &image {

@@ -70,18 +70,70 @@ pub fn wgpu_device() -> Device {
     Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)
 }
 
-/// A device by its command-line name: `flex` (or `cpu`), and `wgpu` in builds with the `wgpu`
-/// feature.
+/// A device by its command-line name: `flex` (or `cpu`); `wgpu` (the default adapter) and
+/// `wgpu:N` (the N-th discrete GPU) in builds with the `wgpu` feature; `cuda` and `cuda:N` in
+/// builds with the `cuda` feature.
 pub fn device(name: &str) -> Result<Device, String> {
-    match name {
-        "flex" | "cpu" => Ok(default_device()),
+    let (kind, index) = match name.split_once(':') {
+        Some((kind, index)) => {
+            let i =
+                index.trim().parse::<usize>().map_err(|_| format!("{name:?}: the device index must be a number"))?;
+            (kind.trim(), Some(i))
+        }
+        None => (name.trim(), None),
+    };
+    match (kind, index) {
+        ("flex" | "cpu", None) => Ok(default_device()),
         #[cfg(feature = "wgpu")]
-        "wgpu" => Ok(wgpu_device()),
-        other => Err(format!(
-            "unknown or unavailable device {other:?}: flex{}",
-            if cfg!(feature = "wgpu") { ", wgpu" } else { " (wgpu needs a build with --features wgpu)" }
+        ("wgpu", None) => Ok(wgpu_device()),
+        #[cfg(feature = "wgpu")]
+        ("wgpu", Some(i)) => Ok(Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(i))),
+        #[cfg(feature = "cuda")]
+        ("cuda", i) => Ok(Device::cuda(i.unwrap_or(0))),
+        _ => Err(format!(
+            "unknown or unavailable device {name:?}: this build knows flex{}{}",
+            if cfg!(feature = "wgpu") { ", wgpu, wgpu:N" } else { " (wgpu needs a build with --features model/wgpu)" },
+            if cfg!(feature = "cuda") { ", cuda, cuda:N" } else { " (cuda needs a build with --features model/cuda)" },
         )),
     }
+}
+
+/// Whether `device` works: a GPU runtime that cannot start (no driver, no adapter) panics at its
+/// first operation, which here becomes an error naming the device.
+pub fn check(device: &Device) -> Result<(), String> {
+    let probe = || Tensor::<1>::from_floats([1.0, 2.0], device).sum().into_scalar::<f32>();
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(probe)) {
+        Ok(3.0) => Ok(()),
+        Ok(v) => Err(format!("device {device:?} computed 1 + 2 = {v}")),
+        Err(p) => {
+            let why = p.downcast_ref::<String>().cloned().or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()));
+            Err(format!("device {device:?} cannot start: {}", why.unwrap_or_else(|| "its runtime panicked".into())))
+        }
+    }
+}
+
+/// [`device`] and [`check`] together: the device named, known to work.
+pub fn working_device(name: &str) -> Result<Device, String> {
+    let d = device(name)?;
+    check(&d)?;
+    Ok(d)
+}
+
+/// Devices from a comma-separated list (`cuda:0,cuda:1`), each named once.
+pub fn devices(list: &str) -> Result<Vec<Device>, String> {
+    let names: Vec<&str> = list.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
+    if names.is_empty() {
+        return Err(format!("{list:?}: name at least one device"));
+    }
+    let mut out: Vec<Device> = Vec::with_capacity(names.len());
+    for name in names {
+        let d = working_device(name)?;
+        if out.contains(&d) {
+            return Err(format!("{list:?}: {name} is named twice; each device takes one share of a batch"));
+        }
+        out.push(d);
+    }
+    Ok(out)
 }
 
 /// burn-ndarray, deprecated in Burn 0.22 and about 12x slower than flex here; built only with
@@ -95,6 +147,24 @@ pub fn ndarray_device() -> Device {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn device_names_parse_and_bad_ones_are_refused() {
+        assert_eq!(device("flex").unwrap(), default_device());
+        assert_eq!(device("cpu").unwrap(), default_device());
+        assert_eq!(devices(" flex ").unwrap(), vec![default_device()]);
+        assert!(check(&default_device()).is_ok());
+        for bad in ["flex:1", "gpu", "cuda:x", "wgpu:-1", ""] {
+            assert!(device(bad).is_err(), "{bad:?} must be refused");
+        }
+        let twice = devices("flex,cpu").unwrap_err();
+        assert!(twice.contains("twice"), "{twice}");
+        assert!(devices(",").unwrap_err().contains("at least one"));
+        if !cfg!(feature = "cuda") {
+            let e = device("cuda:0").unwrap_err();
+            assert!(e.contains("--features model/cuda"), "{e}");
+        }
+    }
 
     #[test]
     fn flex_computes_a_matrix_product() {

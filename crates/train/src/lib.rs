@@ -4,6 +4,7 @@
 pub mod checkpoint;
 pub mod data;
 pub mod export;
+pub mod parallel;
 pub mod training;
 
-pub use training::{FitConfig, OnBadData, fit};
+pub use training::{FitConfig, OnBadData, fit, fit_on};

@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
 use clap::{Parser, Subcommand};
 use train::data::DepthDataset;
-use train::training::{FitConfig, OnBadData, Schedule, Start, fit, preset};
+use train::training::{FitConfig, OnBadData, Schedule, Start, fit_on, preset};
 
 #[derive(Parser)]
 #[command(name = "train", version, about = "Train DenseDepth for DenseTact sensors")]
@@ -58,9 +58,14 @@ struct Common {
     lr: f64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// flex (CPU), wgpu, wgpu:lavapipe-style default adapter.
+    /// flex (the CPU), wgpu (the default adapter), wgpu:N (the N-th discrete GPU), cuda or
+    /// cuda:N (builds with --features model/cuda).
     #[arg(long, default_value = "flex")]
     device: String,
+    /// Several devices that share every batch (data parallel), comma-separated, e.g.
+    /// cuda:0,cuda:1 or wgpu:0,wgpu:1; the first holds the model. Instead of --device.
+    #[arg(long, conflicts_with = "device")]
+    devices: Option<String>,
     /// Checkpoint every this many steps (and at every epoch's end).
     #[arg(long, default_value_t = 50)]
     checkpoint_every: u64,
@@ -153,8 +158,13 @@ fn parse_hw(s: &str) -> Result<[usize; 2], String> {
     Ok(hw)
 }
 
-fn device(name: &str) -> Result<Device> {
-    model::backend::device(name).map_err(anyhow::Error::msg)
+/// The run's devices: `--devices` when given, else `--device`.
+fn devices(c: &Common) -> Result<Vec<Device>> {
+    match &c.devices {
+        Some(list) => model::backend::devices(list),
+        None => model::backend::working_device(&c.device).map(|d| vec![d]),
+    }
+    .map_err(anyhow::Error::msg)
 }
 
 fn config(c: &Common, input_hw: [usize; 2], net_range: [f32; 2], freeze_encoder: bool) -> Result<FitConfig> {
@@ -182,7 +192,8 @@ fn config(c: &Common, input_hw: [usize; 2], net_range: [f32; 2], freeze_encoder:
 }
 
 fn run_fit(args: FitArgs) -> Result<()> {
-    let dev = device(&args.common.device)?;
+    let devs = devices(&args.common)?;
+    let dev = devs[0].clone();
     let cfg = config(&args.common, args.input, args.depth_units.net_range(), false)?;
     let model_config = model::DenseDepthConfig::new(preset(&args.preset)?);
     let weights = match &args.encoder_weights {
@@ -197,7 +208,7 @@ fn run_fit(args: FitArgs) -> Result<()> {
         }
         None => None,
     };
-    let fitted = fit(&args.common.out, &cfg, Start { model_config, weights }, &dev, args.common.resume)?;
+    let fitted = fit_on(&args.common.out, &cfg, Start { model_config, weights }, &devs, args.common.resume)?;
     report(&fitted.state);
     if let Some(bundle) = &args.bundle {
         train::export::export_net(&fitted.net, &fitted.state, bundle)?;
@@ -207,7 +218,8 @@ fn run_fit(args: FitArgs) -> Result<()> {
 }
 
 fn run_finetune(args: FinetuneArgs) -> Result<()> {
-    let dev = device(&args.common.device)?;
+    let devs = devices(&args.common)?;
+    let dev = devs[0].clone();
     let (net, file) = model::bundle::load_bundle(&args.from, &dev)?;
     let input = [file.input_height_px, file.input_width_px];
     // The bundle's depth units: the network's output layer was trained to them.
@@ -218,7 +230,7 @@ fn run_finetune(args: FinetuneArgs) -> Result<()> {
         bail!("{}: the dataset's sensor radius differs from the bundle's", cfg.data.display());
     }
     let start = Start { model_config: file.model.clone(), weights: Some(net) };
-    let fitted = fit(&args.common.out, &cfg, start, &dev, args.common.resume)?;
+    let fitted = fit_on(&args.common.out, &cfg, start, &devs, args.common.resume)?;
     report(&fitted.state);
     if let Some(bundle) = &args.bundle {
         train::export::export_net(&fitted.net, &fitted.state, bundle)?;

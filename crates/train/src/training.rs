@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use burn::data::dataloader::batcher::Batcher;
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::{Device, Tensor};
 use dataset::Split;
 use dataset::progress::Progress;
@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{self, RunState};
 use crate::data::{DepthBatcher, DepthDataset, Jitter};
+use crate::parallel::DataParallel;
 
 /// What a bad sample does to a run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -158,8 +159,16 @@ pub struct Fitted {
     pub state: RunState,
 }
 
-/// Trains (or resumes) the run in `run_dir`.
+/// Trains (or resumes) the run in `run_dir` on one device.
 pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, resume: bool) -> Result<Fitted> {
+    fit_on(run_dir, config, start, std::slice::from_ref(device), resume)
+}
+
+/// Trains (or resumes) the run in `run_dir`, each batch shared out over `devices` (the first
+/// holds the model, validates and checkpoints; see [`crate::parallel`]). The devices are not part
+/// of the run's settings: a run may resume on others.
+pub fn fit_on(run_dir: &Path, config: &FitConfig, start: Start, devices: &[Device], resume: bool) -> Result<Fitted> {
+    let Some(device) = devices.first() else { bail!("no training device given") };
     std::fs::create_dir_all(run_dir).with_context(|| format!("{}: cannot create", run_dir.display()))?;
     let train_device = device.clone().autodiff();
     let mut train = DepthDataset::open(&config.data, Some(Split::Train), config.input_hw)?;
@@ -240,6 +249,7 @@ pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, re
     }
     let loss_config = DepthLossConfig::new().with_dynamic_range(scale.range() as f64);
     let batcher = DepthBatcher { input_hw: config.input_hw, mask: train.mask.clone() };
+    let parallel = DataParallel::new(devices, batcher.clone(), loss_config.clone())?;
     let n_batches = train.records.len().div_ceil(config.batch);
     let mut bad_run = 0u64;
     while state.epoch < config.epochs {
@@ -269,15 +279,13 @@ pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, re
             state.batch += 1;
             state.global_step += 1;
             if !items.is_empty() {
-                let batch = batcher.batch(items, &train_device);
-                let pred = net.forward(batch.images);
-                let loss = loss_config.forward_masked(pred, batch.depths, Some(batch.masks)).total;
-                let mut value = loss.clone().into_scalar::<f32>() as f64;
+                let step = parallel.step(&net, items)?;
+                let mut value = step.loss;
                 if config.inject_nan_step == Some(state.global_step) {
                     value = f64::NAN;
                 }
                 if value.is_finite() {
-                    let grads = GradientsParams::from_grads(loss.backward(), &net);
+                    let grads = step.grads;
                     let lr = config.learning_rate(state.global_step, (n_batches * config.epochs) as u64);
                     net = optim.step(lr, net, grads);
                     state.epoch_loss_sum += value;

@@ -6,19 +6,12 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use burn::tensor::{Distribution, Tensor};
-use dataset::Kit;
-use dataset::format::GeneratorParams;
-use dataset::generate::generate_with_unit;
 use train::training::{FitConfig, OnBadData, Start, fit};
 
-const BIN: &str = env!("CARGO_BIN_EXE_train");
+mod common;
+use common::tiny_dataset;
 
-/// 24 samples of simulated unit 3, a quarter of them test samples.
-fn tiny_dataset(dir: &Path) {
-    let kit = Kit::procedural(25.0);
-    let params = GeneratorParams { test_fraction: 0.25, ..GeneratorParams::new(2, 24, &kit.source) };
-    generate_with_unit(dir, &kit, 3, 25.0, params).unwrap();
-}
+const BIN: &str = env!("CARGO_BIN_EXE_train");
 
 fn config(data: &Path, epochs: usize) -> FitConfig {
     FitConfig {
@@ -129,6 +122,24 @@ fn a_run_killed_at_any_moment_resumes_to_the_same_weights() {
     let metrics = |run: &PathBuf| std::fs::read_to_string(run.join("metrics.csv")).unwrap();
     let strip = |s: String| s.lines().map(|l| l.rsplit_once(',').unwrap().0.to_string()).collect::<Vec<_>>();
     assert_eq!(strip(metrics(&a)), strip(metrics(&b)), "same losses, epoch by epoch");
+}
+
+#[test]
+fn unknown_unbuilt_or_repeated_devices_are_refused_before_any_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let refusal = |extra: &[&str]| {
+        let r = Command::new(BIN).args(fit_args(&tmp.path().join("no-data"), &out)).args(extra).output().unwrap();
+        assert!(!r.status.success(), "{extra:?} must be refused");
+        String::from_utf8_lossy(&r.stderr).into_owned()
+    };
+    assert!(refusal(&["--devices", "flex,cpu"]).contains("twice"));
+    assert!(refusal(&["--device", "tpu"]).contains("\"tpu\""));
+    // Without the cuda feature the message says how to build it; with it and no GPU, which
+    // device cannot start.
+    let cuda = refusal(&["--devices", "cuda:0,cuda:1"]);
+    assert!(cuda.contains("--features model/cuda") || cuda.contains("cannot start"), "{cuda}");
+    assert!(!out.exists(), "nothing is written for a refused device");
 }
 
 #[test]
