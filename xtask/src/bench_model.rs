@@ -51,7 +51,7 @@ pub fn run(args: Args) -> Result<()> {
     let (h, w) = (args.height, args.width);
     let devices = model::backend::devices(&args.devices).map_err(anyhow::Error::msg)?;
     let device = devices[0].clone();
-    let on_cpu = args.devices == "flex";
+    let on_cpu = devices == [model::backend::default_device()];
     let burn_name = if on_cpu { "Burn flex".to_string() } else { format!("Burn {}", args.devices) };
     println!(
         "DenseDepth-{} at {h}x{w} on {}, {threads} threads, median of {} runs",

@@ -105,11 +105,22 @@ pub fn check(device: &Device) -> Result<(), String> {
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(probe)) {
         Ok(3.0) => Ok(()),
         Ok(v) => Err(format!("device {device:?} computed 1 + 2 = {v}")),
-        Err(p) => {
-            let why = p.downcast_ref::<String>().cloned().or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()));
-            Err(format!("device {device:?} cannot start: {}", why.unwrap_or_else(|| "its runtime panicked".into())))
-        }
+        Err(p) => Err(format!("device {device:?} cannot start: {}", panic_message(p.as_ref()))),
     }
+}
+
+/// The message a caught panic carried (GPU runtimes report failures by panicking).
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| payload.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_else(|| "the device's runtime panicked".into())
+}
+
+/// The index of the first device in `devices` that an earlier one already names.
+pub fn first_repeat(devices: &[Device]) -> Option<usize> {
+    (1..devices.len()).find(|&i| devices[..i].contains(&devices[i]))
 }
 
 /// [`device`] and [`check`] together: the device named, known to work.
@@ -125,15 +136,11 @@ pub fn devices(list: &str) -> Result<Vec<Device>, String> {
     if names.is_empty() {
         return Err(format!("{list:?}: name at least one device"));
     }
-    let mut out: Vec<Device> = Vec::with_capacity(names.len());
-    for name in names {
-        let d = working_device(name)?;
-        if out.contains(&d) {
-            return Err(format!("{list:?}: {name} is named twice; each device takes one share of a batch"));
-        }
-        out.push(d);
+    let out = names.iter().map(|name| working_device(name)).collect::<Result<Vec<_>, _>>()?;
+    match first_repeat(&out) {
+        Some(i) => Err(format!("{list:?}: {} is named twice; each device takes one share of a batch", names[i])),
+        None => Ok(out),
     }
-    Ok(out)
 }
 
 /// burn-ndarray, deprecated in Burn 0.22 and about 12x slower than flex here; built only with

@@ -104,10 +104,9 @@ impl BatchNormReluBackend for Flex {
         epsilon: f64,
     ) -> FlexTensor {
         let (x, gamma, beta, stats) = (contiguous(x), contiguous(gamma), contiguous(beta), contiguous(stats));
-        let (dims, _, plane) = layout(&x);
         let coefficients = affine(slice(&gamma), slice(&beta), slice(&stats), epsilon);
         let (scale, shift): (Vec<f32>, Vec<f32>) = coefficients.iter().map(|&(s, t, _)| (s, t)).unzip();
-        flex_tensor(crate::norm_relu::scale_shift_relu_slices(slice(&x), plane, &scale, &shift), &dims)
+        crate::norm_relu::scale_shift_relu_flex(&x, &scale, &shift)
     }
 }
 

@@ -215,11 +215,7 @@ pub fn conv2d_act(conv: &Conv2d, x: Tensor<4>, activation: Activation) -> Tensor
         return activate(conv.forward(x), activation);
     };
     // A bias that is not plain f32 flex sends the layer to the autodiff path, never drops out.
-    let bias = match &conv.bias {
-        Some(b) => flex_f32(&b.val()).map(Some),
-        None => Some(None),
-    };
-    if let (Some(input), Some(weight), Some(bias)) = (flex_f32(&x), flex_f32(&conv.weight.val()), bias) {
+    if let (Some(input), Some(weight), Some(bias)) = (flex_f32(&x), flex_f32(&conv.weight.val()), flex_bias(conv)) {
         return from_flex(flex_conv(input, weight, bias, [padding, stride], activation));
     }
     type D = burn::backend::Dispatch;
@@ -231,6 +227,15 @@ pub fn conv2d_act(conv: &Conv2d, x: Tensor<4>, activation: Activation) -> Tensor
         }),
         activation,
     )
+}
+
+/// `conv`'s bias as a plain f32 flex tensor: `Some(None)` when it has none, `None` when it is
+/// not plain f32 flex.
+pub(crate) fn flex_bias(conv: &Conv2d) -> Option<Option<FlexTensor>> {
+    match &conv.bias {
+        Some(b) => flex_f32(&b.val()).map(Some),
+        None => Some(None),
+    }
 }
 
 /// The activation through Burn's operations.

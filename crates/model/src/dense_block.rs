@@ -13,7 +13,7 @@ use burn::tensor::Tensor;
 use burn_flex::FlexTensor;
 
 use crate::backend::{flex_f32, flex_tensor, from_flex, slice};
-use crate::conv::gemm_padding;
+use crate::conv::{flex_bias, gemm_padding};
 use crate::conv_forward::{Activation, Epilogue, Prologue, forward_image};
 use crate::densenet::{DenseBlock, DenseLayer};
 use crate::gemm_conv::ConvShape;
@@ -51,10 +51,7 @@ impl Layer {
         let kernel = same_size(&layer.conv2, x)?;
         let (scale1, shift1) = inference_affine(&layer.norm1);
         let conv1 = flex_f32(&layer.conv1.weight.val())?;
-        let bias1 = match &layer.conv1.bias {
-            Some(b) => Some(slice(&flex_f32(&b.val())?).to_vec()),
-            None => None,
-        };
+        let bias1 = flex_bias(&layer.conv1)?.map(|b| slice(&b).to_vec());
         let post1 = match &layer.norm2 {
             None => (None, bias1),
             Some(norm) => {
@@ -69,10 +66,7 @@ impl Layer {
             }
         };
         let conv2 = flex_f32(&layer.conv2.weight.val())?;
-        let bias2 = match &layer.conv2.bias {
-            Some(b) => Some(flex_f32(&b.val())?),
-            None => None,
-        };
+        let bias2 = flex_bias(&layer.conv2)?;
         let ([bottleneck, ..], [growth, ..]) = (layer.conv1.weight.dims(), layer.conv2.weight.dims());
         Some(Layer {
             norm1: [flex_f32(&scale1)?, flex_f32(&shift1)?],

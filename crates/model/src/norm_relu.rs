@@ -9,12 +9,13 @@
 use burn::nn::BatchNorm;
 use burn::tensor::Tensor;
 use burn::tensor::activation::relu;
+use burn_flex::FlexTensor;
 use rayon::prelude::*;
 
 use crate::backend::{flex_f32, flex_tensor, from_flex, slice};
 
 /// The kernel: `x` holds planes of `plane` elements, channel after channel, image after image.
-pub(crate) fn scale_shift_relu_slices(x: &[f32], plane: usize, scale: &[f32], shift: &[f32]) -> Vec<f32> {
+fn scale_shift_relu_slices(x: &[f32], plane: usize, scale: &[f32], shift: &[f32]) -> Vec<f32> {
     let channels = scale.len();
     let mut out = vec![0.0f32; x.len()];
     if plane == 0 || channels == 0 {
@@ -48,14 +49,16 @@ pub fn norm_relu<const D: usize>(norm: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
     };
     let (scale, shift) = inference_affine(norm);
     match (flex_f32(&scale), flex_f32(&shift)) {
-        (Some(scale), Some(shift)) => {
-            let dims = input.layout().shape().to_vec();
-            let plane = dims[2..].iter().product();
-            let out = scale_shift_relu_slices(slice(&input), plane, slice(&scale), slice(&shift));
-            from_flex(flex_tensor(out, &dims))
-        }
+        (Some(scale), Some(shift)) => from_flex(scale_shift_relu_flex(&input, slice(&scale), slice(&shift))),
         _ => relu(norm.forward(x)),
     }
+}
+
+/// `max(0, x * scale[c] + shift[c])` for a contiguous f32 flex `x` [batch, channels, ...].
+pub(crate) fn scale_shift_relu_flex(x: &FlexTensor, scale: &[f32], shift: &[f32]) -> FlexTensor {
+    let dims = x.layout().shape().to_vec();
+    let plane = dims[2..].iter().product();
+    flex_tensor(scale_shift_relu_slices(slice(x), plane, scale, shift), &dims)
 }
 
 #[cfg(test)]

@@ -56,10 +56,8 @@ impl DataParallel {
     /// `devices` are plain (not autodiff) devices; the first one holds the model and the
     /// optimiser. A device named twice is an error: two shares on one device only compete.
     pub fn new(devices: &[Device], batcher: DepthBatcher, loss: DepthLossConfig) -> Result<Self> {
-        for (i, a) in devices.iter().enumerate() {
-            if devices[..i].contains(a) {
-                bail!("device {a:?} is named twice; name each device once");
-            }
+        if let Some(i) = model::backend::first_repeat(devices) {
+            bail!("device {:?} is named twice; name each device once", devices[i]);
         }
         Self::new_allowing_repeats(devices, batcher, loss)
     }
@@ -174,7 +172,8 @@ impl Worker {
                         let replica = job.weights.fork(&device).train();
                         share_grads(&replica, job.items, job.fraction, &batcher, &loss, Some(&primary))
                     };
-                    let out = catch_unwind(AssertUnwindSafe(run)).map_err(panic_text);
+                    let out =
+                        catch_unwind(AssertUnwindSafe(run)).map_err(|p| model::backend::panic_message(p.as_ref()));
                     if result_tx.send(out).is_err() {
                         break;
                     }
@@ -197,12 +196,4 @@ impl Drop for Worker {
             let _ = t.join();
         }
     }
-}
-
-fn panic_text(payload: Box<dyn std::any::Any + Send>) -> String {
-    payload
-        .downcast_ref::<String>()
-        .cloned()
-        .or_else(|| payload.downcast_ref::<&str>().map(|s| s.to_string()))
-        .unwrap_or_else(|| "the device's runtime panicked".into())
 }
