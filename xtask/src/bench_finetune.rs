@@ -4,12 +4,12 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use dataset::format::GeneratorParams;
 use dataset::generate::generate_with_unit;
 use dataset::{Kit, Split};
-use model::{DenseDepth, DenseDepthConfig};
+use formats::dataset::GeneratorParams;
+use model::{DenseDepth, DenseDepthConfig, DenseNetConfig};
 use train::data::{DepthBatcher, DepthDataset};
-use train::training::{FitConfig, Schedule, Start, fit, preset, validate};
+use train::{FitConfig, Schedule, Start, fit, validate};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -46,7 +46,7 @@ pub fn run(args: Args) -> Result<()> {
         data.push(dir);
     }
     let (a, b) = (&data[0], &data[1]);
-    let model_config = DenseDepthConfig::new(preset(&args.preset)?);
+    let model_config = DenseDepthConfig::new(DenseNetConfig::by_name(&args.preset).map_err(anyhow::Error::msg)?);
     let cfg = |dir: &PathBuf, fraction: f64| FitConfig {
         epochs: args.epochs,
         batch: args.batch,

@@ -104,7 +104,7 @@ pub fn run(args: Args) -> Result<()> {
             // pixel useful, so the masked loss is the loss above).
             let batcher = DepthBatcher { input_hw: [h, w], mask: vec![1.0; h / 2 * (w / 2)] };
             let parallel = DataParallel::new(&devices, batcher, loss_config.clone())?;
-            let mut rng = dataset::rng::SplitMix64::for_item(7, batch as u64);
+            let mut rng = formats::SplitMix64::for_item(7, batch as u64);
             let items: Vec<DepthItem> = (0..batch)
                 .map(|_| DepthItem {
                     image: (0..3 * h * w).map(|_| rng.unit() as f32).collect(),

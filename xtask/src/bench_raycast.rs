@@ -7,9 +7,9 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use anyhow::{Context, Result, bail};
-use dataset::format::GeneratorParams;
 use dataset::generate::{Generator, build_scene};
 use dataset::{Kit, RayBundle, RayCaster, Renderer, RigPose, SensorUnit, Skipping, Split};
+use formats::dataset::GeneratorParams;
 use sensor::Sensor;
 
 use crate::timing::time;

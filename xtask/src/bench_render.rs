@@ -3,11 +3,11 @@
 //! then the saw-tooth frame and its calibration, with the calibration's error.
 
 use anyhow::Result;
-use dataset::calibrate::{CalibrationOptions, calibrate, compare};
-use dataset::format::GeneratorParams;
+use dataset::calibration::{CalibrationOptions, calibrate, compare};
 use dataset::generate::{build_scene, draw_sample};
-use dataset::render::encode_png_rgb;
 use dataset::{Kit, RayBundle, RayCaster, Renderer, SawToothShot, SensorUnit, Skipping};
+use formats::dataset::GeneratorParams;
+use sensor::frame::encode_png_rgb;
 
 use crate::timing::{median, once, time};
 
@@ -50,7 +50,7 @@ pub fn run(args: Args) -> Result<()> {
         let (t_png, png) = once(|| encode_png_rgb(&img));
         let (t_depth_png, _) = once(|| depth.to_png_um());
         let path = dir.join(format!("{id}.png"));
-        let (t_write, written) = once(|| sensor::io::write_atomic(&path, &png));
+        let (t_write, written) = once(|| formats::fs::write_atomic(&path, &png));
         written?;
         for (v, t) in times.iter_mut().zip([t_scene, t_build, t_cast, t_render, t_png, t_depth_png, t_write]) {
             v.push(t * 1e3);

@@ -10,14 +10,14 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use burn::module::Module;
-use dataset::format::{GeneratorParams, Manifest};
 use dataset::generate::{generate_with_unit, report_lines};
 use dataset::{Kit, Split};
+use formats::dataset::{GeneratorParams, Manifest};
 use infer::Predictor;
 use infer::plot::{ScatterPoint, pareto_front, scatter_svg};
-use model::DenseDepthConfig;
+use model::{DenseDepthConfig, DenseNetConfig};
 use serde::{Deserialize, Serialize};
-use train::training::{FitConfig, Schedule, Start, fit, preset};
+use train::{FitConfig, Schedule, Start, fit};
 
 use crate::timing::once;
 
@@ -149,7 +149,7 @@ pub fn run(args: Args) -> Result<()> {
                 let predictor = Predictor::load(&bundle, device)?;
                 let times = infer::bench::time_frames(&predictor, &frame, &untouched, args.reps)?;
                 let eval_dir = run_dir.join(format!("eval-{backend}"));
-                let stats = infer::eval::evaluate_dataset(&predictor, &data, &["test"], &eval_dir)?;
+                let stats = infer::eval::evaluate_dataset(&predictor, &data, &[Split::Test], &eval_dir)?;
                 let test = &stats["test"];
                 let row = Row {
                     preset: preset_name.clone(),
@@ -166,7 +166,7 @@ pub fn run(args: Args) -> Result<()> {
                     zero_contact_l1_mm: test.zero_contact_l1_mm.mean,
                 };
                 rows.insert(key, row);
-                sensor::io::write_atomic(&rows_path, serde_json::to_string_pretty(&rows)?.as_bytes())?;
+                formats::fs::write_atomic(&rows_path, serde_json::to_string_pretty(&rows)?.as_bytes())?;
             }
         }
     }
@@ -186,7 +186,7 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(dir) = args.svg.parent() {
         std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     }
-    sensor::io::write_atomic(&args.svg, svg.as_bytes())?;
+    formats::fs::write_atomic(&args.svg, svg.as_bytes())?;
     let section = section(&args, &rows, &front, &scene_lines, &manifest);
     println!("\n{section}");
     write_section(&args.markdown, &section)?;
@@ -222,13 +222,16 @@ fn train_once(
         val_fraction: 0.1,
         ..FitConfig::new(data.to_path_buf(), [side, side])
     };
-    let start = Start { model_config: DenseDepthConfig::new(preset(preset_name)?), weights: None };
+    let start = Start {
+        model_config: DenseDepthConfig::new(DenseNetConfig::by_name(preset_name).map_err(anyhow::Error::msg)?),
+        weights: None,
+    };
     let device = model::backend::default_device();
     let (train_s, fitted) = once(|| fit(run_dir, &config, start, &device, true));
     let fitted = fitted.with_context(|| format!("training {preset_name} at {side} (run again to resume)"))?;
     train::export::export_net(&fitted.net, &fitted.state, bundle)?;
     let trained = Trained { train_s, params: fitted.net.num_params() };
-    sensor::io::write_atomic(&cost_path, serde_json::to_string(&trained)?.as_bytes())?;
+    formats::fs::write_atomic(&cost_path, serde_json::to_string(&trained)?.as_bytes())?;
     Ok(trained)
 }
 
@@ -236,7 +239,7 @@ fn train_once(
 fn first_image(
     data: &Path,
     manifest: &Manifest,
-    pick: impl Fn(&dataset::format::SampleRecord) -> bool,
+    pick: impl Fn(&formats::dataset::SampleRecord) -> bool,
 ) -> Result<Vec<u8>> {
     let s = manifest.samples.iter().find(|s| pick(s)).context("no such sample in the dataset")?;
     let path = data.join(s.image.as_ref().context("the dataset has no images")?);
@@ -337,7 +340,7 @@ fn write_section(path: &Path, section: &str) -> Result<()> {
         Err(e) => return Err(e).with_context(|| format!("{}: cannot read", path.display())),
     };
     let new = splice(&old, section).with_context(|| format!("{}", path.display()))?;
-    Ok(sensor::io::write_atomic(path, new.as_bytes())?)
+    Ok(formats::fs::write_atomic(path, new.as_bytes())?)
 }
 
 fn splice(old: &str, section: &str) -> Result<String> {

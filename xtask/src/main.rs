@@ -2,6 +2,7 @@
 //! (`cargo xtask bench ...`).
 
 mod bench_finetune;
+mod bench_loader;
 mod bench_model;
 mod bench_raycast;
 mod bench_render;
@@ -44,6 +45,8 @@ enum Bench {
     Table(bench_table::Args),
     /// Fine-tuning a unit-A model for unit B with 5/10/25 % of B's data, vs training on all of B.
     Finetune(bench_finetune::Args),
+    /// Data loading against the train step: decoded samples/s beside train-step samples/s.
+    Loader(bench_loader::Args),
 }
 
 fn main() -> ExitCode {
@@ -54,6 +57,7 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Model(args) } => bench_model::run(args),
         Command::Bench { what: Bench::Render(args) } => bench_render::run(args),
         Command::Bench { what: Bench::Finetune(args) } => bench_finetune::run(args),
+        Command::Bench { what: Bench::Loader(args) } => bench_loader::run(args),
         Command::Bench { what: Bench::Table(args) } => bench_table::run(args),
         Command::Quickstart(args) => quickstart::run(args),
     };

@@ -8,13 +8,13 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail, ensure};
-use dataset::format::{GeneratorParams, Manifest};
 use dataset::generate::{generate_with_unit, report_lines};
 use dataset::{Kit, Renderer, SensorUnit, Split};
+use formats::dataset::{GeneratorParams, Manifest};
 use infer::eval::{CONTACT_THRESHOLD_MM, SplitStats};
 use infer::{Predictor, write_ply};
-use model::DenseDepthConfig;
-use train::training::{FitConfig, Schedule, Start, fit, preset};
+use model::{DenseDepthConfig, DenseNetConfig};
+use train::{FitConfig, Schedule, Start, fit};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -85,7 +85,10 @@ pub fn run(args: Args) -> Result<()> {
         ..FitConfig::new(data.clone(), input_hw)
     };
     let device = model::backend::default_device();
-    let start = Start { model_config: DenseDepthConfig::new(preset(plan.preset)?), weights: None };
+    let start = Start {
+        model_config: DenseDepthConfig::new(DenseNetConfig::by_name(plan.preset).map_err(anyhow::Error::msg)?),
+        weights: None,
+    };
     let fitted = fit(&run_dir, &config, start, &device, true).context("training (run again to resume)")?;
 
     println!("[3/5] bundle: {}", bundle.display());
@@ -93,7 +96,7 @@ pub fn run(args: Args) -> Result<()> {
 
     println!("[4/5] evaluation of both splits: {}", eval_dir.display());
     let mut predictor = Predictor::load(&bundle, &device)?;
-    let stats = infer::eval::evaluate_dataset(&predictor, &data, &["train", "test"], &eval_dir)?;
+    let stats = infer::eval::evaluate_dataset(&predictor, &data, &[Split::Train, Split::Test], &eval_dir)?;
 
     println!("[5/5] examples: {}", examples.display());
     let manifest = Manifest::load(&data)?;
@@ -148,7 +151,7 @@ fn write_examples(predictor: &Predictor, data: &Path, manifest: &Manifest, dir: 
 }
 
 fn save_png(path: &Path, img: &image::RgbImage) -> Result<()> {
-    Ok(sensor::io::write_atomic(path, &sensor::io::encode_png_rgb(img))?)
+    Ok(formats::fs::write_atomic(path, &sensor::frame::encode_png_rgb(img))?)
 }
 
 /// Median network-only milliseconds per frame on the first test image.

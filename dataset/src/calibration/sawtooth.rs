@@ -1,0 +1,163 @@
+//! The paper's saw-tooth calibration indicator, pressed across the sensor along the image x axis.
+//!
+//! A 2 mm thick strip in the sensor's x-z plane whose pressing edge carries a tooth every
+//! 5 degrees of arc: along the strip the depth ramps up from `press_mm` to `press_mm + tooth_mm`
+//! and drops back at every multiple of 5 degrees, and the strip ends at the last tooth. Each drop
+//! is a sharp edge in the image at a known polar angle, which is what calibration matches.
+//! The depth is exact (the strip is a surface of revolution about the y axis), so images can be
+//! rendered at any sampling without a mesh.
+
+use glam::Vec3;
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+use crate::render::{PixelGrid, Renderer};
+use crate::unit::SensorUnit;
+
+/// Saw-tooth indicator and how it is pressed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SawTooth {
+    /// Strip thickness across the image's x axis (mm).
+    pub thickness_mm: f64,
+    /// Angle between teeth (degrees).
+    pub pitch_deg: f64,
+    /// Number of teeth on each side of the apex; the strip ends at `teeth * pitch_deg`.
+    pub teeth: u32,
+    /// Depth at the apex and at the foot of each tooth's ramp (mm).
+    pub press_mm: f64,
+    /// Height of each tooth above the ramp's foot (mm).
+    pub tooth_mm: f64,
+    /// Teeth (counted from 1 outward, negative on the -x side) printed flat: their drop is
+    /// missing, as when a tooth is broken or hidden.
+    #[serde(default)]
+    pub missing_teeth: Vec<i32>,
+}
+
+impl Default for SawTooth {
+    /// The paper's indicator: 2 mm thick, a tooth every 5 degrees, out to 85 degrees.
+    fn default() -> Self {
+        SawTooth { thickness_mm: 2.0, pitch_deg: 5.0, teeth: 17, press_mm: 0.6, tooth_mm: 1.2, missing_teeth: vec![] }
+    }
+}
+
+impl SawTooth {
+    /// Polar angles (radians) of the tooth edges on one side, outward: the calibration targets.
+    pub fn edge_angles_rad(&self) -> Vec<f64> {
+        (1..=self.teeth).map(|k| (k as f64 * self.pitch_deg).to_radians()).collect()
+    }
+
+    /// Radial depth (mm) the strip presses into a sensor of radius `radius_mm` along unit
+    /// direction `dir` (sensor frame).
+    pub fn depth_mm(&self, radius_mm: f64, dir: Vec3) -> f32 {
+        let (x, y, z) = (dir.x as f64, dir.y as f64, dir.z as f64);
+        let in_plane = x.hypot(z);
+        if !(in_plane > 0.0) {
+            return 0.0;
+        }
+        let psi_deg = x.atan2(z).to_degrees();
+        let end_deg = self.teeth as f64 * self.pitch_deg;
+        if psi_deg.abs() >= end_deg {
+            return 0.0;
+        }
+        let phase = psi_deg.abs() / self.pitch_deg;
+        let segment = phase.floor() as i32 + 1;
+        let sign = if psi_deg < 0.0 { -1 } else { 1 };
+        // A missing tooth merges its ramp with the next one's into one ramp of half the slope,
+        // so nothing marks its angle.
+        let missing = |k: i32| k >= 1 && (k as u32) < self.teeth && self.missing_teeth.contains(&(sign * k));
+        let ramp = if missing(segment) {
+            (phase - (segment - 1) as f64) / 2.0
+        } else if missing(segment - 1) {
+            (phase - (segment - 2) as f64) / 2.0
+        } else {
+            phase.fract()
+        };
+        let profile_mm = self.press_mm + self.tooth_mm * ramp;
+        // The pressing surface is at in-plane distance R - profile; a ray meets it there.
+        let t = (radius_mm - profile_mm) / in_plane;
+        if (t * y).abs() > self.thickness_mm / 2.0 {
+            return 0.0;
+        }
+        (radius_mm - t).max(0.0) as f32
+    }
+
+    /// Depth at every sample of a renderer's grid.
+    pub fn depth_on(&self, renderer: &Renderer) -> Vec<f32> {
+        let radius = renderer.unit().sensor.radius_mm;
+        renderer.directions().iter().map(|&d| if d == Vec3::ZERO { 0.0 } else { self.depth_mm(radius, d) }).collect()
+    }
+}
+
+/// Options for a rendered saw-tooth calibration image.
+#[derive(Clone, Debug)]
+pub struct SawToothShot {
+    pub indicator: SawTooth,
+    /// Samples per pixel along each axis (3: 9 samples, enough for sub-pixel edges).
+    pub samples: u32,
+    /// Multiplies the unit's noise.
+    pub noise_scale: f64,
+    /// Fraction of pixels replaced by salt-and-pepper speckle.
+    pub speckle_fraction: f64,
+    pub seed: u64,
+}
+
+impl Default for SawToothShot {
+    fn default() -> Self {
+        SawToothShot { indicator: SawTooth::default(), samples: 3, noise_scale: 1.0, speckle_fraction: 0.0, seed: 0 }
+    }
+}
+
+impl SawToothShot {
+    /// The full camera frame of `unit` with the indicator pressed in.
+    pub fn render(&self, unit: &SensorUnit) -> RgbImage {
+        let mut noisy = unit.clone();
+        noisy.camera.read_noise *= self.noise_scale;
+        noisy.camera.shot_gain *= self.noise_scale * self.noise_scale;
+        let renderer = Renderer::new(&noisy, PixelGrid::frame(&unit.sensor, self.samples));
+        let depth = self.indicator.depth_on(&renderer);
+        let (radiance, _) = renderer.radiance(&depth);
+        let noise_seed = (self.noise_scale > 0.0).then_some(self.seed);
+        let mut img = renderer.to_image(&radiance, self.samples, noise_seed);
+        if self.speckle_fraction > 0.0 {
+            let mut rng = formats::SplitMix64::for_item(self.seed, 0x5bec);
+            let n = (img.len() / 3) as f64 * self.speckle_fraction;
+            for _ in 0..n as usize {
+                let (x, y) = (rng.below(img.width() as usize) as u32, rng.below(img.height() as usize) as u32);
+                let v = if rng.unit() < 0.5 { 0 } else { 255 };
+                img.put_pixel(x, y, image::Rgb([v, v, v]));
+            }
+        }
+        img
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn profile_drops_at_every_tooth() {
+        let s = SawTooth::default();
+        let dir = |psi_deg: f64| {
+            let p = psi_deg.to_radians();
+            Vec3::new(p.sin() as f32, 0.0, p.cos() as f32)
+        };
+        assert!((s.depth_mm(25.0, dir(0.0)) - 0.6).abs() < 1e-5);
+        for k in 1..=17 {
+            let edge = 5.0 * k as f64;
+            let before = s.depth_mm(25.0, dir(edge - 0.01));
+            let after = s.depth_mm(25.0, dir(edge + 0.01));
+            assert!(before > 1.75 && before < 1.81, "tooth {k}: {before}");
+            let expected_after = if k == 17 { 0.0 } else { 0.6 };
+            assert!((after - expected_after).abs() < 0.01, "tooth {k}: {after}");
+            // Symmetric about the apex.
+            assert_eq!(s.depth_mm(25.0, dir(-edge + 0.01)), s.depth_mm(25.0, dir(edge - 0.01)));
+        }
+        // Off the strip: nothing pressed.
+        assert_eq!(s.depth_mm(25.0, Vec3::new(0.0, 0.1, 0.995).normalize()), 0.0);
+        let missing = SawTooth { missing_teeth: vec![3], ..SawTooth::default() };
+        let (a, b) = (missing.depth_mm(25.0, dir(14.99)), missing.depth_mm(25.0, dir(15.01)));
+        assert!((a - b).abs() < 0.01 && (a - 1.2).abs() < 0.01, "a missing tooth leaves no drop: {a} {b}");
+        assert!(missing.depth_mm(25.0, dir(19.99)) > 1.75 && missing.depth_mm(25.0, dir(-15.01)) < 0.62);
+    }
+}

@@ -1,0 +1,293 @@
+//! The dataset generator: deterministic per sample, parallel, resumable.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use rayon::prelude::*;
+use sensor::Sensor;
+
+use formats::dataset::{
+    DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, LIFTED_Z_TRAVEL_MM, Manifest, SampleRecord,
+    SplitSummary, sample_name,
+};
+use formats::fs::{png_is_complete, remove_temporaries, write_atomic, write_atomic_unsynced};
+use formats::{Progress, SplitMix64, read_json, write_json};
+use sensor::frame::encode_png_rgb;
+
+use crate::kit::{Kit, Split, Trial};
+use crate::raycast::{RayBundle, RayCaster, Skipping};
+use crate::render::Renderer;
+use crate::scene::{RigPose, Scene};
+use crate::unit::SensorUnit;
+
+/// Draws sample `id`'s trial and pose from its own random stream.
+pub fn draw_sample<'k>(kit: &'k Kit, params: &GeneratorParams, id: u32) -> (&'k Trial, RigPose) {
+    let mut rng = SplitMix64::for_item(params.seed, id as u64);
+    let wanted = if rng.unit() < params.test_fraction as f64 { Split::Test } else { Split::Train };
+    let mut trials = kit.trials_in(wanted);
+    if trials.is_empty() {
+        trials = kit.trials.iter().collect();
+    }
+    let trial = trials[rng.below(trials.len())];
+    let [b0, b1] = params.b_axis_deg;
+    let [z0, z1] = params.z_travel_mm;
+    let mut pose = RigPose {
+        b_axis_deg: rng.range(b0 as f64, b1 as f64) as f32,
+        z_travel_mm: rng.range(z0 as f64, z1 as f64) as f32,
+    };
+    // Drawn last and only when asked for, so that datasets made without lifting keep their samples.
+    if params.lifted_fraction > 0.0 && rng.unit() < params.lifted_fraction as f64 {
+        pose.z_travel_mm = LIFTED_Z_TRAVEL_MM;
+    }
+    (trial, pose)
+}
+
+/// Builds a trial's scene in the given pose.
+pub fn build_scene(kit: &Kit, trial: &Trial, pose: RigPose) -> Result<Scene> {
+    let indicator = &kit.indicators[trial.indicator];
+    let indenters: Vec<_> = trial.indenters.iter().map(|&(j, a)| (&kit.indenters[j], a)).collect();
+    Scene::assemble(indicator, &indenters, pose)
+        .with_context(|| format!("{} trial {}", trial.split.name(), trial.number))
+}
+
+/// Everything a run needs, prepared once.
+pub struct Generator<'a> {
+    pub out: PathBuf,
+    pub sensor: &'a Sensor,
+    pub kit: &'a Kit,
+    pub params: GeneratorParams,
+    pub skipping: Skipping,
+    /// Renders each sample's camera image; its unit's geometry must be `sensor`.
+    pub renderer: Option<&'a Renderer>,
+}
+
+/// Generates (or resumes) a dataset of `kit`'s scenes with the images of simulated unit
+/// `unit_seed` (radius `radius_mm`), whose true geometry becomes the dataset's sensor.
+pub fn generate_with_unit(
+    out: &Path,
+    kit: &Kit,
+    unit_seed: u64,
+    radius_mm: f64,
+    params: GeneratorParams,
+) -> Result<RunReport> {
+    let unit = SensorUnit::from_seed(unit_seed, radius_mm);
+    let renderer = Renderer::for_crop(&unit);
+    let params = GeneratorParams { unit: Some(unit_seed), ..params };
+    Generator {
+        out: out.to_path_buf(),
+        sensor: &unit.sensor,
+        kit,
+        params,
+        skipping: Skipping::On,
+        renderer: Some(&renderer),
+    }
+    .run()
+}
+
+/// What a finished run reports.
+pub struct RunReport {
+    pub manifest: Manifest,
+    pub generated: usize,
+    pub resumed: usize,
+    pub seconds: f64,
+}
+
+impl Generator<'_> {
+    /// Generates every missing sample, then writes the manifest. Safe to kill at any moment and
+    /// run again with the same arguments.
+    pub fn run(&self) -> Result<RunReport> {
+        let start = Instant::now();
+        self.prepare_folder()?;
+        let done = self.finished_records()?;
+        let resumed = done.len();
+        let todo: Vec<u32> = (0..self.params.count).filter(|id| !done.contains_key(id)).collect();
+        let rays = RayBundle::new(self.sensor);
+        let mask = self.sensor.valid_mask();
+        let progress = Progress::new("generating", todo.len() as u64);
+        let fresh: Vec<SampleRecord> = todo
+            .par_iter()
+            .map(|&id| {
+                let record = self.make_sample(id, &rays, &mask)?;
+                progress.inc(1);
+                Ok(record)
+            })
+            .collect::<Result<_>>()?;
+        progress.finish();
+        let mut records = done;
+        let generated = fresh.len();
+        records.extend(fresh.into_iter().map(|r| (r.id, r)));
+        let samples: Vec<SampleRecord> = records.into_values().collect();
+        let mut summary = BTreeMap::new();
+        for split in [Split::Train, Split::Test] {
+            summary.insert(split, SplitSummary::of(samples.iter().filter(|s| s.split == split)));
+        }
+        let manifest = Manifest {
+            format_version: DATASET_FORMAT_VERSION,
+            sensor: self.sensor.clone(),
+            generator: self.params.clone(),
+            samples,
+            summary,
+        };
+        write_json(&self.out.join("manifest.json"), &manifest)?;
+        Ok(RunReport { manifest, generated, resumed, seconds: start.elapsed().as_secs_f64() })
+    }
+
+    fn make_sample(&self, id: u32, rays: &RayBundle, mask: &[bool]) -> Result<SampleRecord> {
+        let (trial, pose) = draw_sample(self.kit, &self.params, id);
+        let scene = build_scene(self.kit, trial, pose)?;
+        let caster = RayCaster::new(&scene.part_refs(), self.sensor.radius_mm, self.skipping);
+        let (depth, cast) = caster.depth_map(self.sensor, rays);
+        let name = sample_name(id);
+        let depth_rel = format!("depth/{name}.png");
+        // Sample files are renamed into place without a sync each (the sync cost more than
+        // the encoding); a resume checks that they are whole instead.
+        write_atomic_unsynced(&self.out.join(&depth_rel), &depth.to_png_um())?;
+        if self.params.depth_u8 {
+            let bytes = depth.to_png_u8(self.sensor.max_depth_mm as f32);
+            write_atomic_unsynced(&self.out.join(format!("depth_u8/{name}.png")), &bytes)?;
+        }
+        let image = match self.renderer {
+            Some(renderer) => {
+                let rel = format!("images/{name}.png");
+                let noise_seed = SplitMix64::for_item(self.params.seed ^ 0x1a6e, id as u64).next_u64();
+                let img = renderer.render(&depth.depth_mm, Some(noise_seed));
+                write_atomic_unsynced(&self.out.join(&rel), &encode_png_rgb(&img))?;
+                Some(rel)
+            }
+            None => None,
+        };
+        let record = SampleRecord {
+            id,
+            split: trial.split,
+            trial: trial.number,
+            scene: scene.description,
+            depth: depth_rel,
+            image,
+            stats: DepthStats::of(&depth, mask),
+            cast,
+        };
+        let json = serde_json::to_vec_pretty(&record).expect("record serialises");
+        write_atomic_unsynced(&self.out.join(format!("samples/{name}.json")), &json)?;
+        Ok(record)
+    }
+
+    /// Creates the folder, or checks that an existing one was made with the same parameters,
+    /// and removes temporary files left by a killed run.
+    fn prepare_folder(&self) -> Result<()> {
+        let mut subs = vec!["samples", "depth"];
+        if self.params.depth_u8 {
+            subs.push("depth_u8");
+        }
+        if self.renderer.is_some() {
+            subs.extend(["images", "unit"]);
+        }
+        for sub in subs {
+            let dir = self.out.join(sub);
+            std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+            remove_temporaries(&dir)?;
+        }
+        let file = GeneratorFile {
+            format_version: DATASET_FORMAT_VERSION,
+            sensor: self.sensor.clone(),
+            params: self.params.clone(),
+        };
+        let path = self.out.join("generator.json");
+        if path.exists() {
+            let existing: GeneratorFile = read_json(&path)?;
+            if existing != file {
+                bail!(
+                    "{}: this folder holds a dataset made with other parameters or another sensor; \
+                     use another --out, or remove the folder to start again",
+                    path.display()
+                );
+            }
+        } else {
+            write_json(&path, &file)?;
+        }
+        if let Some(renderer) = self.renderer {
+            write_unit_files(&self.out.join("unit"), renderer)?;
+        }
+        Ok(())
+    }
+
+    /// Records of samples finished by an earlier run.
+    fn finished_records(&self) -> Result<BTreeMap<u32, SampleRecord>> {
+        let mut done = BTreeMap::new();
+        let mut damaged = 0;
+        for id in 0..self.params.count {
+            let path = self.out.join(format!("samples/{}.json", sample_name(id)));
+            if !path.exists() {
+                continue;
+            }
+            // After a power cut a record or its files may be short: such a sample is made again.
+            let Ok(record) = read_json::<SampleRecord>(&path) else {
+                damaged += 1;
+                std::fs::remove_file(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
+                continue;
+            };
+            if record.id != id || record.image.is_some() != self.renderer.is_some() {
+                bail!("{}: record does not match sample {id} of this dataset", path.display());
+            }
+            let mut files: Vec<String> = std::iter::once(record.depth.clone()).chain(record.image.clone()).collect();
+            if self.params.depth_u8 {
+                files.push(format!("depth_u8/{}.png", sample_name(id)));
+            }
+            if !files.iter().all(|f| png_is_complete(&self.out.join(f))) {
+                damaged += 1;
+                std::fs::remove_file(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
+                continue;
+            }
+            done.insert(id, record);
+        }
+        if damaged > 0 {
+            eprintln!("{damaged} samples left incomplete by an interrupted run will be made again");
+        }
+        Ok(done)
+    }
+}
+
+/// The unit's description, its true geometry and its no-contact image.
+pub fn write_unit_files(dir: &Path, renderer: &Renderer) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    let unit: &SensorUnit = renderer.unit();
+    write_json(&dir.join("unit.json"), unit)?;
+    write_json(&dir.join("truth.json"), &unit.sensor)?;
+    write_atomic(&dir.join("reference.png"), &encode_png_rgb(&renderer.reference_image(1)))?;
+    Ok(())
+}
+
+/// Human-readable statistics of a finished run.
+pub fn report_lines(report: &RunReport) -> Vec<String> {
+    let m = &report.manifest;
+    let mut lines = vec![format!(
+        "{} samples ({} new, {} from an earlier run) in {:.1} s: {:.1} samples/s",
+        m.samples.len(),
+        report.generated,
+        report.resumed,
+        report.seconds,
+        report.generated as f64 / report.seconds.max(1e-9)
+    )];
+    for (split, s) in &m.summary {
+        lines.push(format!(
+            "  {:5}: {:6} samples, contact {:5.1}% of useful pixels, mean contact depth {:.3} mm, max depth {:.3} mm",
+            split.name(),
+            s.samples,
+            100.0 * s.mean_contact_fraction,
+            s.mean_contact_depth_mm,
+            s.max_depth_mm
+        ));
+    }
+    let n = m.samples.len().max(1) as f64;
+    let kept: f64 =
+        m.samples.iter().map(|s| s.cast.triangles_kept as f64 / s.cast.triangles_total.max(1) as f64).sum::<f64>() / n;
+    let cast: f64 =
+        m.samples.iter().map(|s| s.cast.rays_cast as f64 / s.cast.rays_total.max(1) as f64).sum::<f64>() / n;
+    lines.push(format!(
+        "  skipping: {:.1}% of triangles kept, {:.1}% of rays cast (mean per sample)",
+        100.0 * kept,
+        100.0 * cast
+    ));
+    lines
+}

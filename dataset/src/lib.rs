@@ -1,0 +1,34 @@
+//! Ground truth for DenseTact sensors: meshes, kits, scenes posed like the paper's rig, depth
+//! maps ray-cast through the sensor's fisheye correspondence, simulated units' camera images,
+//! and the fisheye calibration from a saw-tooth frame.
+//!
+//! The dataset folder format itself lives in the `formats` crate, which training and inference
+//! read without this crate's dependencies.
+
+#![deny(unsafe_code)]
+// `!(x > 0.0)` is used on purpose: unlike `x <= 0.0` it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+pub mod calibration;
+pub mod generate;
+pub mod holes;
+pub mod kit;
+pub mod mesh;
+pub mod procedural;
+// AVX2 kernels, reached only through `simd::Avx2` tokens.
+#[allow(unsafe_code)]
+pub mod raycast;
+#[allow(unsafe_code)]
+pub mod render;
+pub mod scene;
+pub mod shapes;
+mod simd;
+pub mod unit;
+
+pub use calibration::sawtooth::{SawTooth, SawToothShot};
+pub use kit::{Kit, Split, Trial};
+pub use mesh::{LoadOptions, Mesh, UpAxis};
+pub use raycast::{Cone, RayBundle, RayCaster, Skipping};
+pub use render::{PixelGrid, Renderer};
+pub use scene::{Indenter, Indicator, RigPose, Scene, SceneDescription};
+pub use unit::SensorUnit;

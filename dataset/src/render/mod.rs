@@ -1,0 +1,389 @@
+//! The camera image a sensor unit would record of a pressed surface.
+//!
+//! Each pixel sees the coating at `(R - depth) * dir` along its true ray. Surface normals come
+//! from central differences of those points over the pixel grid, so they follow the depth map's
+//! own resolution. The three LEDs light the coating (Lambert plus a Blinn-Phong lobe); because
+//! they stand at different azimuths, a surface tilted towards one LED turns that LED's colour,
+//! which is how the real sensor encodes the normal in colour. Vignetting, the housing beyond the
+//! elastomer's rim and sensor noise follow; the result is 8-bit RGB.
+//!
+//! Only what changes is shaded: the no-contact image of the unit is cached, and a frame re-shades
+//! just the pixels whose depth (or a neighbour's, through the normal) differs from zero.
+
+use glam::Vec3;
+use image::RgbImage;
+
+use crate::unit::SensorUnit;
+
+mod grid;
+mod noise;
+mod shade;
+
+pub use grid::PixelGrid;
+use noise::{GaussianNoise, quantise};
+use shade::Lighting;
+
+/// What a sample point sees.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Seen {
+    /// Beyond the lens' field: black.
+    Nothing,
+    /// Between the elastomer's rim and the lens' edge: the dark housing.
+    Housing,
+    /// The coated elastomer.
+    Elastomer,
+}
+
+/// Linear grey levels (before noise and quantisation), RGB per sample point.
+pub type Radiance = Vec<[f32; 3]>;
+
+/// Renders images of one unit on one pixel grid; build once, render many frames.
+pub struct Renderer {
+    unit: SensorUnit,
+    grid: PixelGrid,
+    dirs: Vec<Vec3>,
+    seen: Vec<Seen>,
+    vignette: Vec<f32>,
+    /// Which of the left, right, upper and lower neighbours (bits 0..4) of each sample the
+    /// normal's differences use: one outside the grid or off the elastomer is replaced by the
+    /// sample itself (a one-sided difference). Bits, not indices, to keep the table small.
+    neighbours: Vec<u8>,
+    lighting: Lighting,
+    reference: Radiance,
+}
+
+impl Renderer {
+    pub fn new(unit: &SensorUnit, grid: PixelGrid) -> Self {
+        let (mut dirs, mut seen, mut vignette) = (Vec::new(), Vec::new(), Vec::new());
+        let s = &unit.sensor;
+        for i in 0..grid.len() {
+            let (u, v) = grid.point(i);
+            let hit = s.correspondence.direction(u, v);
+            let (dir, theta) = hit.map_or((Vec3::ZERO, f64::INFINITY), |(d, t)| (d.as_vec3(), t));
+            seen.push(if theta <= s.max_theta_rad {
+                Seen::Elastomer
+            } else if theta <= unit.camera.lens_max_theta_rad {
+                Seen::Housing
+            } else {
+                Seen::Nothing
+            });
+            dirs.push(dir);
+            let t = (theta.min(unit.camera.lens_max_theta_rad) / s.max_theta_rad) as f32;
+            vignette.push((1.0 - unit.camera.vignetting as f32 * t * t).max(0.0));
+        }
+        let (w, h) = (grid.width as usize, grid.height as usize);
+        let neighbours = (0..grid.len())
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let candidates =
+                    [(x > 0, i.wrapping_sub(1)), (x + 1 < w, i + 1), (y > 0, i.wrapping_sub(w)), (y + 1 < h, i + w)];
+                let mut bits = 0u8;
+                for (k, (inside, j)) in candidates.into_iter().enumerate() {
+                    if inside && seen[j] == Seen::Elastomer {
+                        bits |= 1 << k;
+                    }
+                }
+                bits
+            })
+            .collect();
+        let lighting = Lighting::new(unit);
+        let housing = unit.camera.housing_level as f32;
+        let reference = (0..grid.len())
+            .map(|i| match seen[i] {
+                Seen::Housing => [housing * vignette[i]; 3],
+                _ => [0.0; 3],
+            })
+            .collect();
+        let mut renderer = Renderer { unit: unit.clone(), grid, dirs, seen, vignette, neighbours, lighting, reference };
+        let elastomer: Vec<u32> =
+            (0..grid.len()).filter(|&i| renderer.seen[i] == Seen::Elastomer).map(|i| i as u32).collect();
+        let mut shaded = vec![[0.0; 3]; elastomer.len()];
+        renderer.shade_elastomer(&vec![0.0; grid.len()], &elastomer, &mut shaded);
+        for (&i, v) in elastomer.iter().zip(shaded) {
+            renderer.reference[i as usize] = v;
+        }
+        renderer
+    }
+
+    /// Renderer for the crop of `sensor`, which must be the unit's own geometry.
+    pub fn for_crop(unit: &SensorUnit) -> Self {
+        Renderer::new(unit, PixelGrid::crop(&unit.sensor))
+    }
+
+    pub fn grid(&self) -> &PixelGrid {
+        &self.grid
+    }
+
+    pub fn unit(&self) -> &SensorUnit {
+        &self.unit
+    }
+
+    /// Unit ray direction of every sample point (zero beyond the lens).
+    pub fn directions(&self) -> &[Vec3] {
+        &self.dirs
+    }
+
+    /// The no-contact image before noise.
+    pub fn reference(&self) -> &Radiance {
+        &self.reference
+    }
+
+    /// Radiance of a frame with `depth_mm` per sample point: the reference, with every sample
+    /// whose normal the depth changes shaded again. Returns the radiance and how many samples
+    /// were shaded.
+    pub fn radiance(&self, depth_mm: &[f32]) -> (Radiance, usize) {
+        let (indices, shaded) = self.changes(depth_mm);
+        let mut out = self.reference.clone();
+        for (&i, v) in indices.iter().zip(shaded) {
+            out[i as usize] = v;
+        }
+        (out, indices.len())
+    }
+
+    /// Left, right, upper and lower neighbour of sample `i` (itself where one is not used).
+    #[inline(always)]
+    fn neighbours_of(&self, i: usize) -> [usize; 4] {
+        let bits = self.neighbours[i];
+        let w = self.grid.width as usize;
+        let pick = |k: u8, j: usize| if bits & (1 << k) != 0 { j } else { i };
+        [pick(0, i.wrapping_sub(1)), pick(1, i + 1), pick(2, i.wrapping_sub(w)), pick(3, i + w)]
+    }
+
+    /// The samples whose radiance differs from the reference (in grid order) and their values.
+    fn changes(&self, depth_mm: &[f32]) -> (Vec<u32>, Radiance) {
+        assert_eq!(depth_mm.len(), self.grid.len(), "depth map does not match the render grid");
+        let mut dirty = vec![false; self.grid.len()];
+        for (i, &d) in depth_mm.iter().enumerate() {
+            if d != 0.0 {
+                dirty[i] = true;
+                for j in self.neighbours_of(i) {
+                    dirty[j] = true;
+                }
+            }
+        }
+        // The housing and what lies beyond the lens look the same whatever is pressed.
+        let indices: Vec<u32> =
+            (0..dirty.len()).filter(|&i| dirty[i] && self.seen[i] == Seen::Elastomer).map(|i| i as u32).collect();
+        let mut shaded = vec![[0.0; 3]; indices.len()];
+        self.shade_elastomer(depth_mm, &indices, &mut shaded);
+        (indices, shaded)
+    }
+
+    /// 8-bit image of a radiance on this grid (`samples`^2 samples averaged per pixel), with
+    /// noise drawn from `noise_seed` (`None`: no noise).
+    pub fn to_image(&self, radiance: &Radiance, samples: u32, noise_seed: Option<u64>) -> RgbImage {
+        let s = samples as usize;
+        let (w, h) = (self.grid.width / samples, self.grid.height / samples);
+        let mut noise = noise_seed.map(|seed| GaussianNoise::new(seed, &self.unit));
+        let mut finish = |px: [f32; 3]| -> [u8; 3] {
+            let px = match &mut noise {
+                Some(noise) => noise.add_to(px),
+                None => px,
+            };
+            px.map(quantise)
+        };
+        let mut img = RgbImage::new(w, h);
+        let gw = self.grid.width as usize;
+        let norm = 1.0 / (s * s) as f32;
+        for (idx, px) in img.pixels_mut().enumerate() {
+            let (x, y) = (idx % w as usize, idx / w as usize);
+            let mut sum = [0f32; 3];
+            for sy in 0..s {
+                let row = (y * s + sy) * gw + x * s;
+                for sample in &radiance[row..row + s] {
+                    for c in 0..3 {
+                        sum[c] += sample[c];
+                    }
+                }
+            }
+            px.0 = finish(sum.map(|v| v * norm));
+        }
+        img
+    }
+
+    /// The unit's no-contact image on this grid, without noise.
+    pub fn reference_image(&self, samples: u32) -> RgbImage {
+        self.to_image(&self.reference, samples, None)
+    }
+
+    /// One frame (one sample per pixel) with noise drawn from `noise_seed` (`None`: no noise).
+    /// The reference and the re-shaded samples are merged block by block on the way to 8 bits,
+    /// so no full-size copy of the reference is made.
+    pub fn render(&self, depth_mm: &[f32], noise_seed: Option<u64>) -> RgbImage {
+        const BLOCK: usize = 64;
+        let (indices, shaded) = self.changes(depth_mm);
+        let mut noise = noise_seed.map(|seed| GaussianNoise::new(seed, &self.unit));
+        let mut bytes = vec![0u8; self.grid.len() * 3];
+        let mut block = [[0f32; 3]; BLOCK];
+        let mut next = 0;
+        for (b, out) in bytes.chunks_mut(3 * BLOCK).enumerate() {
+            let (start, len) = (b * BLOCK, out.len() / 3);
+            block[..len].copy_from_slice(&self.reference[start..start + len]);
+            while next < indices.len() && (indices[next] as usize) < start + len {
+                block[indices[next] as usize - start] = shaded[next];
+                next += 1;
+            }
+            let values = block[..len].as_flattened();
+            match &mut noise {
+                Some(noise) => noise.add_quantised(values, out),
+                None => out.iter_mut().zip(values).for_each(|(o, &v)| *o = quantise(v)),
+            }
+        }
+        RgbImage::from_raw(self.grid.width, self.grid.height, bytes).expect("grid size")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+    use sensor::Sensor;
+    use sensor::frame::encode_png_rgb;
+
+    use super::noise::NOISE_TABLE_LEN;
+    use super::*;
+
+    fn nominal() -> (SensorUnit, Renderer) {
+        let unit = SensorUnit::nominal(Sensor::default());
+        let renderer = Renderer::for_crop(&unit);
+        (unit, renderer)
+    }
+
+    /// Depth of a flat patch (5 degrees across) facing `target` from 1 mm under the surface
+    /// along the crop pixel `(x, y)`.
+    fn patch_facing(r: &Renderer, x: usize, y: usize, target: Vec3) -> Vec<f32> {
+        let n = r.grid().width as usize;
+        let radius = r.unit().sensor.radius_mm as f32;
+        let d0 = r.directions()[y * n + x];
+        let p0 = d0 * (radius - 1.0);
+        let normal = (target - p0).normalize();
+        r.directions()
+            .iter()
+            .map(|&d| {
+                if d == Vec3::ZERO || d.dot(d0) < 5f32.to_radians().cos() {
+                    return 0.0;
+                }
+                let t = normal.dot(p0) / normal.dot(d);
+                (radius - t).clamp(0.0, 9.0)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_patch_facing_an_led_takes_its_colour_in_rgb_order() {
+        let (unit, r) = nominal();
+        let n = r.grid().width as usize;
+        let dir = tempfile::tempdir().unwrap();
+        for (channel, led) in unit.leds.iter().enumerate() {
+            let led_pos = Vec3::from(led.position_mm.map(|c| c as f32));
+            // The crop pixel 40 degrees from the axis towards this LED's azimuth.
+            let azimuth = led_pos.y.atan2(led_pos.x) as f64;
+            let target = DVec3::new(
+                40f64.to_radians().sin() * azimuth.cos(),
+                40f64.to_radians().sin() * azimuth.sin(),
+                40f64.to_radians().cos(),
+            );
+            let (u, v) = unit.sensor.correspondence.pixel(target).unwrap();
+            let (x0, y0) = unit.sensor.crop_origin_px();
+            let (x, y) = ((u.round() as i64 - x0) as usize, (v.round() as i64 - y0) as usize);
+            let depth = patch_facing(&r, x, y, led_pos);
+            assert!(depth[y * n + x] > 0.5);
+            // Through the PNG file, so the channel order on disk is what is checked.
+            let path = dir.path().join(format!("patch{channel}.png"));
+            std::fs::write(&path, encode_png_rgb(&r.render(&depth, None))).unwrap();
+            let img = image::open(&path).unwrap().to_rgb8();
+            let px = img.get_pixel(x as u32, y as u32).0;
+            let reference = r.reference_image(1).get_pixel(x as u32, y as u32).0;
+            let brightest = (0..3).max_by_key(|&c| px[c]).unwrap();
+            assert_eq!(brightest, channel, "patch facing LED {channel}: {px:?} (reference {reference:?})");
+            let share = |p: [u8; 3]| p[channel] as f32 / p.iter().map(|&c| c as f32).sum::<f32>();
+            assert!(share(px) > share(reference), "{px:?} vs {reference:?}");
+        }
+    }
+
+    #[test]
+    fn no_contact_is_the_reference_and_contact_changes_only_its_neighbourhood() {
+        let (_, r) = nominal();
+        let n = r.grid().width as usize;
+        let zeros = vec![0.0; r.grid().len()];
+        assert_eq!(r.render(&zeros, None), r.reference_image(1));
+        let (_, shaded) = r.radiance(&zeros);
+        assert_eq!(shaded, 0, "nothing to shade without contact");
+
+        let mut depth = zeros.clone();
+        for y in 200..220 {
+            for x in 300..330 {
+                depth[y * n + x] = 0.5 + 0.01 * (x - 300) as f32;
+            }
+        }
+        let img = r.render(&depth, None);
+        let reference = r.reference_image(1);
+        let mut changed = 0;
+        for (x, y, p) in img.enumerate_pixels() {
+            let near = (199..=220).contains(&y) && (299..=330).contains(&x);
+            if p != reference.get_pixel(x, y) {
+                assert!(near, "pixel ({x}, {y}) changed away from the contact");
+                changed += 1;
+            }
+        }
+        assert!(changed > 500, "the contact must show: {changed} pixels changed");
+    }
+
+    #[test]
+    fn noise_has_the_units_spread_and_is_seeded() {
+        let (unit, r) = nominal();
+        let zeros = vec![0.0; r.grid().len()];
+        let a = r.render(&zeros, Some(1));
+        assert_eq!(a, r.render(&zeros, Some(1)));
+        assert_ne!(a, r.render(&zeros, Some(2)));
+        let reference = r.reference();
+        let (mut sum, mut sum2, mut count) = (0f64, 0f64, 0f64);
+        for (i, p) in a.pixels().enumerate() {
+            let signal = reference[i][0];
+            if !(40.0..200.0).contains(&signal) {
+                continue;
+            }
+            let d = p.0[0] as f64 - signal as f64;
+            let expected = (unit.camera.read_noise.powi(2) + unit.camera.shot_gain * signal as f64).sqrt();
+            sum += d / expected;
+            sum2 += (d / expected).powi(2);
+            count += 1.0;
+        }
+        let (mean, sd) = (sum / count, (sum2 / count - (sum / count).powi(2)).sqrt());
+        // Rounding to grey levels adds 1/12 of a level squared.
+        assert!(mean.abs() < 0.02 && (sd - 1.0).abs() < 0.08, "normalised noise mean {mean}, sd {sd}");
+    }
+
+    /// The AVX2 noise kernel rounds exactly as the portable one, out of range and NaN included,
+    /// across the table's wrap-around.
+    #[test]
+    fn simd_noise_matches_the_portable_kernel() {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(avx2) = crate::simd::Avx2::detect() {
+            let (unit, _) = nominal();
+            let mut values: Vec<f32> = (0..4099).map(|i| (i as f32 * 0.731).sin() * 300.0 + 100.0).collect();
+            values.extend([f32::NAN, -0.0, -1e9, 1e9, 254.6, 255.4, 0.49, f32::INFINITY, f32::NEG_INFINITY]);
+            let (mut a, mut b) = (vec![0u8; values.len()], vec![0u8; values.len()]);
+            let mut portable = GaussianNoise::new(5, &unit);
+            let mut simd = GaussianNoise::new(5, &unit);
+            // Start near the table's end, so that a run wraps.
+            portable.pos = NOISE_TABLE_LEN - 1001;
+            simd.pos = NOISE_TABLE_LEN - 1001;
+            portable.add_quantised_portable(&values, &mut a);
+            simd.add_quantised_avx2(avx2, &values, &mut b);
+            assert_eq!(a, b);
+            assert_eq!(portable.pos, simd.pos);
+            assert!(a.contains(&0) && a.contains(&255) && a.iter().any(|&x| x > 0 && x < 255));
+        }
+    }
+
+    #[test]
+    fn units_see_the_same_scene_differently() {
+        let a = SensorUnit::from_seed(1, 25.0);
+        let b = SensorUnit::from_seed(2, 25.0);
+        let (ra, rb) = (Renderer::for_crop(&a), Renderer::for_crop(&b));
+        let (ia, ib) = (ra.reference_image(1), rb.reference_image(1));
+        let mean_diff = ia.as_raw().iter().zip(ib.as_raw()).map(|(&p, &q)| (p as f64 - q as f64).abs()).sum::<f64>()
+            / ia.as_raw().len() as f64;
+        assert!(mean_diff > 5.0, "units should look different: mean difference {mean_diff} grey levels");
+    }
+}

@@ -1,0 +1,216 @@
+//! Simulated sensor units: what differs between two physical builds of the same design.
+//!
+//! Every DenseTact is hand-assembled: the camera sits a little off the dome's axis, lenses differ
+//! in scale and distortion, LEDs are soldered at slightly different places and brightnesses, the
+//! coating is sprayed thicker or thinner. A model trained on one unit sees another unit's images
+//! as shifted colours and a warped geometry; [`SensorUnit::from_seed`] draws such a unit.
+
+use std::f64::consts::{FRAC_PI_2, PI};
+
+use glam::DVec3;
+use sensor::{Correspondence, RadialMap, Sensor};
+use serde::{Deserialize, Serialize};
+
+use formats::SplitMix64;
+
+/// Format version of `unit.json`.
+pub const UNIT_FORMAT_VERSION: u32 = 1;
+
+/// One lit LED: a point light with a soft fall-off (the LEDs sit behind a diffuser).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Led {
+    /// Position in the sensor frame (mm): on the ring at the dome's base.
+    pub position_mm: [f64; 3],
+    /// What the camera's R, G and B channels record of this LED's light (colour balance and
+    /// cross-talk between channels), relative units.
+    pub colour_rgb: [f64; 3],
+    /// Distance (mm) at which the fall-off has halved the light: `1 / (1 + (d / d_half)^2)`.
+    pub half_distance_mm: f64,
+}
+
+/// The reflective coating seen through the silicone: Lambertian plus a Blinn-Phong lobe.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Coating {
+    pub albedo: f64,
+    pub specular: f64,
+    pub shininess: f64,
+}
+
+/// Camera response: exposure, vignetting and noise (8-bit grey levels).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Camera {
+    /// Grey levels per unit of shaded radiance.
+    pub exposure: f64,
+    /// Fraction of light lost at the useful disk's rim: `1 - v (theta / theta_max)^2`.
+    pub vignetting: f64,
+    /// Largest polar angle the lens sees (a 185-degree fisheye sees 92.5 degrees).
+    pub lens_max_theta_rad: f64,
+    /// Grey level of the dark housing seen between the elastomer's rim and the lens' edge.
+    pub housing_level: f64,
+    /// Constant light (scatter inside the silicone), grey levels.
+    pub ambient_level: f64,
+    /// Read noise, grey levels (standard deviation).
+    pub read_noise: f64,
+    /// Shot noise: variance grows by this many grey levels squared per grey level of signal.
+    pub shot_gain: f64,
+}
+
+/// A physical sensor unit: its true geometry and its optics and lighting.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SensorUnit {
+    pub format_version: u32,
+    /// The seed that drew this unit; `None` for the nominal unit.
+    pub seed: Option<u64>,
+    /// True geometry and correspondence (what calibration tries to recover).
+    pub sensor: Sensor,
+    /// Red, green and blue LEDs, in that order.
+    pub leds: [Led; 3],
+    pub coating: Coating,
+    pub camera: Camera,
+}
+
+/// Nominal LED ring: radius and height of the lit LEDs (mm), for a 25 mm dome.
+const LED_RING_RADIUS_MM: f64 = 21.0;
+const LED_RING_Z_MM: f64 = -2.0;
+
+impl SensorUnit {
+    /// The design's nominal unit: centred ideal fisheye, LEDs 120 degrees apart (red at +x).
+    pub fn nominal(sensor: Sensor) -> Self {
+        let scale = sensor.radius_mm / 25.0;
+        let led = |azimuth_deg: f64, colour_rgb: [f64; 3]| {
+            let a = azimuth_deg.to_radians();
+            Led {
+                position_mm: [
+                    LED_RING_RADIUS_MM * scale * a.cos(),
+                    LED_RING_RADIUS_MM * scale * a.sin(),
+                    LED_RING_Z_MM * scale,
+                ],
+                colour_rgb,
+                half_distance_mm: 20.0 * scale,
+            }
+        };
+        SensorUnit {
+            format_version: UNIT_FORMAT_VERSION,
+            seed: None,
+            sensor,
+            leds: [led(0.0, [1.0, 0.06, 0.03]), led(120.0, [0.05, 0.9, 0.08]), led(240.0, [0.03, 0.08, 1.1])],
+            coating: Coating { albedo: 0.8, specular: 0.25, shininess: 20.0 },
+            camera: Camera {
+                exposure: 520.0,
+                vignetting: 0.3,
+                lens_max_theta_rad: 92.5f64.to_radians(),
+                housing_level: 10.0,
+                ambient_level: 8.0,
+                read_noise: 1.5,
+                shot_gain: 0.03,
+            },
+        }
+    }
+
+    /// A unit drawn from `seed`: every build-to-build difference varied within plausible bounds.
+    /// Its fisheye keeps the useful disk inside the crop, as a real build is adjusted to.
+    pub fn from_seed(seed: u64, radius_mm: f64) -> Self {
+        let mut rng = SplitMix64::for_item(seed, 0x005e_1150_a417_u64);
+        let mut unit = SensorUnit::nominal(Sensor::with_radius(radius_mm));
+        unit.seed = Some(seed);
+        let mut vary = |lo: f64, hi: f64| rng.range(lo, hi);
+
+        let s = &mut unit.sensor;
+        s.correspondence = Correspondence {
+            centre_u_px: 399.5 + vary(-8.0, 8.0),
+            centre_v_px: 299.5 + vary(-6.0, 6.0),
+            radial: RadialMap::Equidistant { focal_px_per_rad: 1.0 },
+        };
+        // Distortion drawn until the lens stays monotone out to the crop's corners; the focal
+        // length puts the rim (90 degrees) 268..284 px from the centre.
+        let rim_px = vary(268.0, 284.0);
+        for _ in 0..100 {
+            let k = [vary(-0.03, 0.03), vary(-0.005, 0.005), 0.0, 0.0];
+            let poly = FRAC_PI_2 * (1.0 + FRAC_PI_2.powi(2) * (k[0] + FRAC_PI_2.powi(2) * k[1]));
+            s.correspondence.radial = RadialMap::KannalaBrandt { focal_px_per_rad: rim_px / poly, k };
+            if s.validate().is_ok() {
+                break;
+            }
+        }
+
+        for (i, led) in unit.leds.iter_mut().enumerate() {
+            let scale = radius_mm / 25.0;
+            let azimuth = (i as f64 * 120.0 + vary(-8.0, 8.0)).to_radians();
+            let ring = (LED_RING_RADIUS_MM + vary(-1.0, 1.0)) * scale;
+            let z = (LED_RING_Z_MM + vary(-0.8, 0.8)) * scale;
+            led.position_mm = [ring * azimuth.cos(), ring * azimuth.sin(), z];
+            let gain = vary(0.85, 1.15);
+            for c in &mut led.colour_rgb {
+                *c *= gain * vary(0.92, 1.08);
+            }
+        }
+        unit.coating = Coating { albedo: vary(0.7, 0.9), specular: vary(0.1, 0.35), shininess: vary(12.0, 35.0) };
+        let cam = &mut unit.camera;
+        cam.exposure *= vary(0.9, 1.1);
+        cam.vignetting = vary(0.15, 0.4);
+        cam.housing_level = vary(5.0, 15.0);
+        cam.ambient_level = vary(4.0, 12.0);
+        cam.read_noise = vary(0.8, 2.5);
+        cam.shot_gain = vary(0.01, 0.05);
+        unit
+    }
+
+    /// Checks the unit's numbers; the error says which is wrong.
+    pub fn validate(&self) -> Result<(), String> {
+        self.sensor.validate().map_err(|e| e.to_string())?;
+        let c = &self.camera;
+        let finite_nonneg = |name: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{name} must be a finite number >= 0, got {v}"))
+            }
+        };
+        finite_nonneg("camera.exposure", c.exposure)?;
+        finite_nonneg("camera.vignetting", c.vignetting)?;
+        finite_nonneg("camera.read_noise", c.read_noise)?;
+        finite_nonneg("camera.shot_gain", c.shot_gain)?;
+        finite_nonneg("coating.albedo", self.coating.albedo)?;
+        finite_nonneg("coating.specular", self.coating.specular)?;
+        if !(c.lens_max_theta_rad > self.sensor.max_theta_rad && c.lens_max_theta_rad < PI) {
+            return Err(format!(
+                "camera.lens_max_theta_rad must exceed the sensor's max_theta_rad and stay below pi, got {}",
+                c.lens_max_theta_rad
+            ));
+        }
+        for (i, led) in self.leds.iter().enumerate() {
+            if DVec3::from(led.position_mm).length() >= self.sensor.radius_mm || !(led.half_distance_mm > 0.0) {
+                return Err(format!("LED {i} must sit inside the dome with a positive half distance"));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn units_differ_and_stay_valid() {
+        let nominal = SensorUnit::nominal(Sensor::default());
+        nominal.validate().unwrap();
+        let mut centres = Vec::new();
+        for seed in 0..50 {
+            let unit = SensorUnit::from_seed(seed, 25.0);
+            unit.validate().unwrap_or_else(|e| panic!("unit {seed}: {e}"));
+            assert_eq!(unit, SensorUnit::from_seed(seed, 25.0), "a seed always gives the same unit");
+            let radial = &unit.sensor.correspondence.radial;
+            let rim = radial.radius_of_theta(FRAC_PI_2).unwrap();
+            assert!((268.0..=284.0 + 1e-9).contains(&rim), "unit {seed}: rim at {rim} px");
+            // The useful disk stays inside the crop.
+            let n = unit.sensor.crop_size_px as usize;
+            let mask = unit.sensor.valid_mask();
+            assert!(!mask[0] && !mask[n - 1] && !mask[n * n - 1]);
+            centres.push(unit.sensor.correspondence.centre_u_px);
+        }
+        centres.sort_by(f64::total_cmp);
+        centres.dedup();
+        assert_eq!(centres.len(), 50);
+    }
+}

@@ -1,0 +1,224 @@
+//! The generator end to end: determinism, kill -9 and resume, bad arguments.
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_dataset");
+
+fn generate(out: &Path, count: u32, extra: &[&str]) -> std::process::Output {
+    Command::new(BIN)
+        .args(["generate", "--out", out.to_str().unwrap(), "--count", &count.to_string(), "--seed", "11"])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    for sub in ["", "samples", "depth"] {
+        let mut names: Vec<_> =
+            std::fs::read_dir(dir.join(sub)).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_file()).collect();
+        names.sort();
+        out.extend(
+            names.into_iter().map(|p| (p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap())),
+        );
+    }
+    out
+}
+
+#[test]
+fn killed_and_resumed_run_equals_an_uninterrupted_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let count = 400;
+
+    // Kill -9 once some samples are done.
+    let mut child = Command::new(BIN)
+        .args(["generate", "--out", a.to_str().unwrap(), "--count", &count.to_string(), "--seed", "11"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    loop {
+        let done = std::fs::read_dir(a.join("samples")).map(|d| d.count()).unwrap_or(0);
+        if done >= 10 {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(120), "no progress");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!a.join("manifest.json").exists(), "the run finished before it could be killed");
+    // A half-written file as a kill could leave it.
+    std::fs::write(a.join("depth/.000399.png.1234.tmp"), b"half").unwrap();
+
+    let resumed = generate(&a, count, &[]);
+    assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
+    let stdout = String::from_utf8_lossy(&resumed.stdout);
+    assert!(stdout.contains("from an earlier run") && stdout.contains("contact"), "{stdout}");
+
+    // As a power cut could leave them: a short PNG and a short record.
+    let png = a.join("depth/000005.png");
+    let bytes = std::fs::read(&png).unwrap();
+    std::fs::write(&png, &bytes[..bytes.len() / 2]).unwrap();
+    std::fs::write(a.join("samples/000007.json"), b"{\"id\": 7, \"spl").unwrap();
+    let repaired = generate(&a, count, &[]);
+    assert!(repaired.status.success(), "{}", String::from_utf8_lossy(&repaired.stderr));
+    assert!(String::from_utf8_lossy(&repaired.stderr).contains("2 samples left incomplete"));
+    assert!(String::from_utf8_lossy(&repaired.stdout).contains("(2 new"));
+
+    let fresh = generate(&b, count, &[]);
+    assert!(fresh.status.success());
+    let (fa, fb) = (files(&a), files(&b));
+    assert_eq!(fa.len(), fb.len());
+    assert_eq!(fa.len(), 2 + 2 * count as usize);
+    for ((na, ca), (nb, cb)) in fa.iter().zip(&fb) {
+        assert_eq!(na, nb);
+        assert!(ca == cb, "{na} differs between the resumed and the uninterrupted run");
+    }
+    let manifest = formats::dataset::Manifest::load(&a).unwrap();
+    assert_eq!(manifest.samples.len(), count as usize);
+    assert!(manifest.summary.values().all(|s| s.samples > 0 && s.mean_contact_fraction > 0.0));
+}
+
+#[test]
+fn bad_arguments_and_mismatched_folders_fail_clearly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("d");
+    let r = generate(&out, 3, &["--z-min-mm", "3", "--z-max-mm", "1"]);
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("--z-min-mm"));
+
+    assert!(generate(&out, 3, &[]).status.success());
+    let r = generate(&out, 3, &["--z-max-mm", "1.0"]);
+    assert!(!r.status.success());
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("generator.json") && err.contains("other parameters"), "{err}");
+
+    let r = generate(&tmp.path().join("e"), 3, &["--kit", "/nonexistent/kit"]);
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("/nonexistent/kit"));
+
+    let bad_sensor = tmp.path().join("sensor.json");
+    std::fs::write(&bad_sensor, "{\"radius_mm\": 25}").unwrap();
+    let r = generate(&tmp.path().join("f"), 3, &["--sensor", bad_sensor.to_str().unwrap()]);
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("sensor.json"));
+}
+
+#[test]
+fn a_units_images_follow_its_depth_maps() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let r = generate(&a, 6, &["--unit", "5"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let manifest = formats::dataset::Manifest::load(&a).unwrap();
+    let truth = sensor::Sensor::load_json(&a.join("unit/truth.json")).unwrap();
+    assert_eq!(manifest.sensor, truth, "a unit's dataset is labelled in its true geometry");
+    assert_eq!(manifest.generator.unit, Some(5));
+    let reference = image::open(a.join("unit/reference.png")).unwrap().to_rgb8();
+    let mask = truth.valid_mask();
+    for s in &manifest.samples {
+        let img = image::open(a.join(s.image.as_ref().unwrap())).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (570, 570));
+        let depth = sensor::DepthMap::load_png_um(&a.join(&s.depth)).unwrap();
+        // Away from contact only noise separates the frame from the reference; under contact
+        // the shading changes.
+        let (mut quiet, mut quiet_n, mut pressed, mut pressed_n) = (0.0, 0.0, 0.0, 0.0);
+        for (i, (p, q)) in img.pixels().zip(reference.pixels()).enumerate() {
+            let diff: f64 = (0..3).map(|c| (p.0[c] as f64 - q.0[c] as f64).abs()).sum::<f64>() / 3.0;
+            if !mask[i] {
+                continue;
+            }
+            if depth.depth_mm[i] > 0.3 {
+                (pressed, pressed_n) = (pressed + diff, pressed_n + 1.0);
+            } else if depth.depth_mm[i] == 0.0 {
+                (quiet, quiet_n) = (quiet + diff, quiet_n + 1.0);
+            }
+        }
+        let quiet = quiet / quiet_n;
+        assert!(quiet < 3.0, "sample {}: {quiet} grey levels off the reference without contact", s.id);
+        if pressed_n > 100.0 {
+            assert!(pressed / pressed_n > 2.0 * quiet, "sample {}: contact barely shows", s.id);
+        }
+    }
+    // Same seed and unit, same images.
+    assert!(generate(&b, 6, &["--unit", "5"]).status.success());
+    for s in &manifest.samples {
+        let name = s.image.as_ref().unwrap();
+        assert_eq!(std::fs::read(a.join(name)).unwrap(), std::fs::read(b.join(name)).unwrap());
+    }
+    // Another unit cannot resume this folder.
+    let r = generate(&a, 6, &["--unit", "6"]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("other parameters"));
+    let r = generate(&tmp.path().join("c"), 2, &["--unit", "5", "--sensor", "x.json"]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("--sensor"));
+}
+
+#[test]
+fn sawtooth_and_calibrate_commands_round_trip() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let r = Command::new(BIN).args(["sawtooth", "--unit", "9", "--out", dir.to_str().unwrap()]).output().unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let out = dir.join("sensor.json");
+    let r = Command::new(BIN)
+        .args(["calibrate", "--image", dir.join("sawtooth.png").to_str().unwrap(), "--out", out.to_str().unwrap()])
+        .args(["--truth", dir.join("truth.json").to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&r.stdout);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let last = stdout.lines().last().unwrap();
+    let value = |key: &str| -> f64 {
+        last.split_whitespace().find_map(|kv| kv.strip_prefix(key)).unwrap_or_else(|| panic!("{last}")).parse().unwrap()
+    };
+    assert!(value("rms_px=") <= 0.5 && value("rms_deg=") <= 0.1, "{last}");
+    let calibrated = sensor::Sensor::load_json(&out).unwrap();
+    assert!(matches!(calibrated.correspondence.radial, sensor::RadialMap::Tabulated { .. }));
+
+    // A depth map is no calibration image: a named error, and no output written.
+    let bad = dir.join("bad.png");
+    std::fs::write(&bad, sensor::DepthMap::zeros(64).to_png_um()).unwrap();
+    let out2 = dir.join("sensor2.json");
+    let r = Command::new(BIN)
+        .args(["calibrate", "--image", bad.to_str().unwrap(), "--out", out2.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("bad.png"));
+    assert!(!out2.exists());
+}
+
+#[test]
+fn lifted_samples_have_no_contact_and_leave_the_others_unchanged() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (plain, lifted) = (tmp.path().join("plain"), tmp.path().join("lifted"));
+    // A raised z range is accepted as written (a negative number, not a flag).
+    let args = ["--z-min-mm", "-0.5", "--z-max-mm", "2.0"];
+    let r = generate(&plain, 40, &args);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let r = generate(&lifted, 40, &[&args[..], &["--lifted-fraction", "0.3"]].concat());
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let (a, b) =
+        (formats::dataset::Manifest::load(&plain).unwrap(), formats::dataset::Manifest::load(&lifted).unwrap());
+    let mut lifted_count = 0;
+    for (p, l) in a.samples.iter().zip(&b.samples) {
+        assert_eq!((p.trial, p.split, p.scene.pose.b_axis_deg), (l.trial, l.split, l.scene.pose.b_axis_deg));
+        let depth = sensor::DepthMap::load_png_um(&lifted.join(&l.depth)).unwrap();
+        if l.scene.pose.z_travel_mm == formats::dataset::LIFTED_Z_TRAVEL_MM {
+            lifted_count += 1;
+            assert_eq!(l.stats.contact_fraction, 0.0, "sample {}", l.id);
+            assert!(depth.depth_mm.iter().all(|&d| d == 0.0), "sample {}: a lifted rig presses", l.id);
+        } else {
+            assert_eq!(p.scene.pose.z_travel_mm, l.scene.pose.z_travel_mm);
+            assert!(l.stats.contact_fraction > 0.0, "sample {}", l.id);
+        }
+    }
+    assert!((5..=20).contains(&lifted_count), "{lifted_count} of 40 lifted at a 0.3 chance");
+    let r = generate(&tmp.path().join("bad"), 3, &["--lifted-fraction", "1.5"]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("--lifted-fraction"));
+}

@@ -1,0 +1,287 @@
+//! The dataset folder format, written by `dataset` and read by `train`, `infer` and `xtask`.
+//!
+//! ```text
+//! DIR/generator.json        generator parameters and sensor (a resumed run must match them)
+//! DIR/samples/NNNNNN.json   one record per finished sample: its scene, split and statistics
+//! DIR/depth/NNNNNN.png      depth, 16-bit grey PNG in micrometres, on the sensor's crop
+//! DIR/depth_u8/NNNNNN.png   optional: the paper's 8-bit encoding (0..255 = 0..max depth)
+//! DIR/images/NNNNNN.png     with a simulated unit: its 8-bit RGB camera image of the crop
+//! DIR/unit/unit.json        the unit's optics and lighting (`SensorUnit`)
+//! DIR/unit/truth.json       the unit's true sensor description (for evaluating a calibration)
+//! DIR/unit/reference.png    the unit's no-contact image of the crop, without noise
+//! DIR/manifest.json         written last: sensor, parameters, every sample record, summary
+//! ```
+//!
+//! A sample's record is written after its images, each atomically (temporary file, rename), so
+//! after a killed run a record on disk means a complete sample: that is what makes generation
+//! resumable. Sample files are not synced one by one; after a power cut a resumed run checks
+//! that each record parses and each PNG ends whole, and makes a sample again where not.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use sensor::{CONTACT_THRESHOLD_MM, DepthMap, Sensor};
+use serde::{Deserialize, Serialize};
+
+use crate::json::{FormatError, read_json};
+
+pub const DATASET_FORMAT_VERSION: u32 = 1;
+
+/// Which part of a kit's index a trial (and so a sample) belongs to. The paper's train and test
+/// trials share no indicator-indenter combination.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Split {
+    Train,
+    Test,
+}
+
+impl Split {
+    pub fn name(self) -> &'static str {
+        match self {
+            Split::Train => "train",
+            Split::Test => "test",
+        }
+    }
+}
+
+impl std::fmt::Display for Split {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Split {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "train" => Ok(Split::Train),
+            "test" => Ok(Split::Test),
+            other => Err(format!("split must be train or test, got {other:?}")),
+        }
+    }
+}
+
+/// Where an indenter goes: which hole, turned by how much about the hole's axis.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Placement {
+    pub indenter: String,
+    pub hole: usize,
+    /// Turn about the hole's axis (degrees, the index CSV's angle). Zero is the indenter's own
+    /// `x` axis carried by the shortest rotation from its `+z` to the inward hole axis.
+    pub angle_deg: f32,
+}
+
+/// The machine's pose of the assembly.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RigPose {
+    /// Rotation about the sensor axis (degrees).
+    pub b_axis_deg: f32,
+    /// How far the assembly is pressed down along the sensor axis from its seated pose (mm).
+    pub z_travel_mm: f32,
+}
+
+/// What a scene is made of: enough to rebuild it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneDescription {
+    pub indicator: String,
+    pub placements: Vec<Placement>,
+    pub pose: RigPose,
+}
+
+/// Counts that show what the ray caster's skipping saved.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CastStats {
+    pub triangles_total: usize,
+    pub triangles_kept: usize,
+    pub rays_total: usize,
+    pub rays_cast: usize,
+    pub rays_hit: usize,
+}
+
+/// Per-sample depth statistics over the useful pixels.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DepthStats {
+    pub contact_fraction: f32,
+    pub mean_contact_depth_mm: f32,
+    pub max_depth_mm: f32,
+}
+
+impl DepthStats {
+    pub fn of(depth: &DepthMap, mask: &[bool]) -> Self {
+        let (mut useful, mut contact, mut sum, mut max) = (0usize, 0usize, 0f64, 0f32);
+        for (&d, &m) in depth.depth_mm.iter().zip(mask) {
+            if !m {
+                continue;
+            }
+            useful += 1;
+            if d > CONTACT_THRESHOLD_MM {
+                contact += 1;
+                sum += d as f64;
+            }
+            max = max.max(d);
+        }
+        DepthStats {
+            contact_fraction: contact as f32 / useful.max(1) as f32,
+            mean_contact_depth_mm: (sum / contact.max(1) as f64) as f32,
+            max_depth_mm: max,
+        }
+    }
+}
+
+/// What the generator was asked to make.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GeneratorParams {
+    pub seed: u64,
+    pub count: u32,
+    /// "procedural" or the kit folder.
+    pub kit: String,
+    pub z_travel_mm: [f32; 2],
+    pub b_axis_deg: [f32; 2],
+    /// Chance that a sample's rig is lifted clear of the sensor ([`LIFTED_Z_TRAVEL_MM`]): a
+    /// frame without contact, so that a network learns to answer zero where nothing touches.
+    #[serde(default)]
+    pub lifted_fraction: f32,
+    /// Chance that a sample is drawn from the test trials.
+    pub test_fraction: f32,
+    pub depth_u8: bool,
+    /// Seed of the simulated unit whose images are rendered; `None`: depth only.
+    #[serde(default)]
+    pub unit: Option<u64>,
+}
+
+impl GeneratorParams {
+    /// The generator's defaults: z travel 0..2.5 mm, any B-axis angle, 10% test samples,
+    /// 16-bit depth only, no images.
+    pub fn new(seed: u64, count: u32, kit: &str) -> Self {
+        GeneratorParams {
+            seed,
+            count,
+            kit: kit.to_string(),
+            z_travel_mm: [0.0, 2.5],
+            b_axis_deg: [0.0, 360.0],
+            lifted_fraction: 0.0,
+            test_fraction: 0.1,
+            depth_u8: false,
+            unit: None,
+        }
+    }
+}
+
+/// The z travel of a lifted sample (mm): well above any kit's reach of a 25 mm hemisphere.
+pub const LIFTED_Z_TRAVEL_MM: f32 = -40.0;
+
+/// `generator.json`: parameters and the sensor, fixed for the life of a dataset folder.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GeneratorFile {
+    pub format_version: u32,
+    pub sensor: Sensor,
+    pub params: GeneratorParams,
+}
+
+/// One sample's record.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SampleRecord {
+    pub id: u32,
+    pub split: Split,
+    /// The kit index's trial number within the split.
+    pub trial: u32,
+    pub scene: SceneDescription,
+    /// Paths relative to the dataset folder.
+    pub depth: String,
+    /// The camera image, when the dataset has a unit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image: Option<String>,
+    pub stats: DepthStats,
+    pub cast: CastStats,
+}
+
+/// Summary of one split.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SplitSummary {
+    pub samples: usize,
+    pub mean_contact_fraction: f32,
+    pub mean_contact_depth_mm: f32,
+    pub max_depth_mm: f32,
+}
+
+impl SplitSummary {
+    pub fn of<'a>(records: impl Iterator<Item = &'a SampleRecord>) -> Self {
+        let mut s = SplitSummary::default();
+        let (mut frac, mut depth, mut with_contact) = (0f64, 0f64, 0usize);
+        for r in records {
+            s.samples += 1;
+            frac += r.stats.contact_fraction as f64;
+            if r.stats.contact_fraction > 0.0 {
+                depth += r.stats.mean_contact_depth_mm as f64;
+                with_contact += 1;
+            }
+            s.max_depth_mm = s.max_depth_mm.max(r.stats.max_depth_mm);
+        }
+        s.mean_contact_fraction = (frac / s.samples.max(1) as f64) as f32;
+        s.mean_contact_depth_mm = (depth / with_contact.max(1) as f64) as f32;
+        s
+    }
+}
+
+/// `manifest.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub format_version: u32,
+    pub sensor: Sensor,
+    pub generator: GeneratorParams,
+    pub samples: Vec<SampleRecord>,
+    pub summary: BTreeMap<Split, SplitSummary>,
+}
+
+impl Manifest {
+    /// Loads `DIR/manifest.json`, checking its version and that the sample files exist.
+    pub fn load(dir: &Path) -> Result<Manifest, FormatError> {
+        let path = dir.join("manifest.json");
+        let manifest: Manifest = read_json(&path)?;
+        if manifest.format_version > DATASET_FORMAT_VERSION {
+            return Err(FormatError::invalid(
+                &path,
+                format!(
+                    "dataset format {} is newer than this program understands ({DATASET_FORMAT_VERSION})",
+                    manifest.format_version
+                ),
+            ));
+        }
+        manifest.sensor.validate().map_err(|e| FormatError::invalid(&path, e))?;
+        for s in &manifest.samples {
+            for file in std::iter::once(&s.depth).chain(&s.image) {
+                let file = dir.join(file);
+                if !file.is_file() {
+                    return Err(FormatError::invalid(&file, format!("sample {} is listed but missing", s.id)));
+                }
+            }
+        }
+        Ok(manifest)
+    }
+
+    /// The records of one split, or of all of them.
+    pub fn split(&self, split: Option<Split>) -> impl Iterator<Item = &SampleRecord> {
+        self.samples.iter().filter(move |s| split.is_none_or(|want| s.split == want))
+    }
+}
+
+/// A sample's file name stem: its id, six digits.
+pub fn sample_name(id: u32) -> String {
+    format!("{id:06}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn splits_parse_and_print() {
+        for split in [Split::Train, Split::Test] {
+            assert_eq!(split.to_string().parse::<Split>().unwrap(), split);
+        }
+        assert_eq!(" TEST ".parse::<Split>().unwrap(), Split::Test);
+        assert!("validation".parse::<Split>().unwrap_err().contains("train or test"));
+    }
+}

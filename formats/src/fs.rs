@@ -1,0 +1,177 @@
+//! Atomic file and folder writes: a reader (or a resumed job) never sees a half-written file or
+//! half a folder.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// An I/O failure with the path it happened on.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {source}")]
+pub struct FsError {
+    pub path: PathBuf,
+    pub source: std::io::Error,
+}
+
+impl FsError {
+    pub fn new(path: &Path, source: std::io::Error) -> Self {
+        FsError { path: path.to_path_buf(), source }
+    }
+}
+
+/// Writes `bytes` to a temporary file beside `path`, syncs it, then renames it over `path`.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FsError> {
+    write_atomic_with(path, |f| f.write_all(bytes))
+}
+
+/// Like [`write_atomic`] without the sync: a killed process still leaves the old file or the
+/// whole new one, but after a power cut the new file may be empty or short. For files a reader
+/// checks (see [`png_is_complete`]) and many of them, where a sync each costs more than the
+/// encoding.
+pub fn write_atomic_unsynced(path: &Path, bytes: &[u8]) -> Result<(), FsError> {
+    write_file(path, false, |f| f.write_all(bytes))
+}
+
+/// Like [`write_atomic`], with the content produced by `fill`.
+pub fn write_atomic_with(
+    path: &Path,
+    fill: impl FnOnce(&mut std::fs::File) -> std::io::Result<()>,
+) -> Result<(), FsError> {
+    write_file(path, true, fill)
+}
+
+fn write_file(
+    path: &Path,
+    sync: bool,
+    fill: impl FnOnce(&mut std::fs::File) -> std::io::Result<()>,
+) -> Result<(), FsError> {
+    let tmp = temp_path(path);
+    let result = (|| {
+        let mut file = std::fs::File::create(&tmp)?;
+        fill(&mut file)?;
+        if sync {
+            file.sync_all()?;
+        }
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(FsError::new(path, e));
+    }
+    Ok(())
+}
+
+/// The temporary name used while `path` is written: same folder (so rename is atomic),
+/// unique per process, ending in `.tmp` so that cleanup can recognise leftovers.
+pub fn temp_path(path: &Path) -> PathBuf {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+/// Removes the temporary files (`*.tmp`) a killed run left in `dir`.
+pub fn remove_temporaries(dir: &Path) -> Result<(), FsError> {
+    for entry in std::fs::read_dir(dir).map_err(|e| FsError::new(dir, e))? {
+        let path = entry.map_err(|e| FsError::new(dir, e))?.path();
+        if path.file_name().is_some_and(|n| n.to_string_lossy().ends_with(".tmp")) {
+            std::fs::remove_file(&path).map_err(|e| FsError::new(&path, e))?;
+        }
+    }
+    Ok(())
+}
+
+/// Whether a PNG file ends with its `IEND` chunk: a cheap check that it was written whole.
+pub fn png_is_complete(path: &Path) -> bool {
+    use std::io::{Read, Seek, SeekFrom};
+    const IEND: [u8; 12] = [0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xae, 0x42, 0x60, 0x82];
+    let tail = (|| {
+        let mut f = std::fs::File::open(path)?;
+        if f.metadata()?.len() < 8 + 25 + 12 {
+            return Ok::<_, std::io::Error>(None);
+        }
+        f.seek(SeekFrom::End(-12))?;
+        let mut tail = [0u8; 12];
+        f.read_exact(&mut tail)?;
+        Ok(Some(tail))
+    })();
+    matches!(tail, Ok(Some(t)) if t == IEND)
+}
+
+/// Writes a whole folder atomically: `fill` writes into a temporary folder beside `dir`, which
+/// then replaces `dir` (the old one is renamed away first and removed last). A failed `fill`
+/// leaves `dir` as it was and removes the temporary folder.
+pub fn write_dir_atomic<E: From<FsError>>(dir: &Path, fill: impl FnOnce(&Path) -> Result<(), E>) -> Result<(), E> {
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+    let tmp = dir.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp).map_err(|e| FsError::new(&tmp, e))?;
+    let result = fill(&tmp).and_then(|()| {
+        let old = dir.with_file_name(format!(".{name}.{}.old", std::process::id()));
+        if dir.exists() {
+            std::fs::rename(dir, &old).map_err(|e| FsError::new(dir, e))?;
+        }
+        std::fs::rename(&tmp, dir).map_err(|e| FsError::new(dir, e))?;
+        let _ = std::fs::remove_dir_all(&old);
+        Ok(())
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn replaces_whole_file_and_leaves_no_temp() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.txt");
+        write_atomic(&path, b"first version, longer").unwrap();
+        write_atomic(&path, b"second").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"second");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn complete_pngs_are_told_from_cut_ones() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("d.png");
+        let bytes = sensor::DepthMap::zeros(8).to_png_um();
+        write_atomic_unsynced(&path, &bytes).unwrap();
+        assert!(png_is_complete(&path));
+        std::fs::write(&path, &bytes[..bytes.len() - 5]).unwrap();
+        assert!(!png_is_complete(&path));
+        std::fs::write(&path, b"").unwrap();
+        assert!(!png_is_complete(&path));
+        assert!(!png_is_complete(&dir.path().join("missing.png")));
+    }
+
+    #[test]
+    fn failed_fill_keeps_old_content() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.txt");
+        write_atomic(&path, b"kept").unwrap();
+        let err = write_atomic_with(&path, |_| Err(std::io::Error::other("disk full"))).unwrap_err();
+        assert!(err.to_string().contains("a.txt"));
+        assert_eq!(std::fs::read(&path).unwrap(), b"kept");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn folders_are_replaced_whole_or_not_at_all() {
+        let root = tempfile::tempdir().unwrap();
+        let dir = root.path().join("out");
+        let write = |text: &'static str| write_dir_atomic(&dir, |tmp| write_atomic(&tmp.join("f"), text.as_bytes()));
+        write("one").unwrap();
+        write("two").unwrap();
+        assert_eq!(std::fs::read(dir.join("f")).unwrap(), b"two");
+        let failed: Result<(), FsError> = write_dir_atomic(&dir, |tmp| {
+            write_atomic(&tmp.join("f"), b"three")?;
+            Err(FsError::new(tmp, std::io::Error::other("no space")))
+        });
+        assert!(failed.is_err());
+        assert_eq!(std::fs::read(dir.join("f")).unwrap(), b"two");
+        // Nothing but the folder itself is left beside it.
+        assert_eq!(std::fs::read_dir(root.path()).unwrap().count(), 1);
+    }
+}

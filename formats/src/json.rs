@@ -1,0 +1,41 @@
+//! JSON files that name themselves in every error.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+use crate::fs::{FsError, write_atomic};
+
+/// A file that could not be read, parsed or written.
+#[derive(Debug, thiserror::Error)]
+pub enum FormatError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+impl FormatError {
+    pub fn invalid(path: &Path, message: impl std::fmt::Display) -> Self {
+        FormatError::Invalid { path: path.to_path_buf(), message: message.to_string() }
+    }
+}
+
+impl From<FsError> for FormatError {
+    fn from(e: FsError) -> Self {
+        FormatError::Io { path: e.path, source: e.source }
+    }
+}
+
+/// Reads and parses a JSON file, naming the file in every error.
+pub fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T, FormatError> {
+    let text = std::fs::read_to_string(path).map_err(|source| FormatError::Io { path: path.into(), source })?;
+    serde_json::from_str(&text).map_err(|e| FormatError::invalid(path, e))
+}
+
+/// Writes pretty JSON atomically.
+pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), FormatError> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| FormatError::invalid(path, e))?;
+    Ok(write_atomic(path, text.as_bytes())?)
+}

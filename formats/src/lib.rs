@@ -1,0 +1,24 @@
+//! The on-disk contracts that several of the project's crates read and write, kept light so
+//! that training and inference need none of the generator's dependencies:
+//!
+//! - [`dataset`]: the dataset folder's manifest, sample records and splits;
+//! - [`training`]: what a bundle records of its training;
+//! - [`fs`]: atomic file and folder writes (a reader never sees half a file);
+//! - [`json`]: JSON files that name themselves in every error;
+//! - [`rng`]: the seeded random streams that fix a dataset's content and a run's data order;
+//! - [`progress`]: what long jobs show while they run.
+
+#![deny(unsafe_code)]
+
+pub mod dataset;
+pub mod fs;
+pub mod json;
+pub mod progress;
+pub mod rng;
+pub mod training;
+
+pub use dataset::{Manifest, SampleRecord, Split};
+pub use fs::FsError;
+pub use json::{FormatError, read_json, write_json};
+pub use progress::Progress;
+pub use rng::SplitMix64;

@@ -1,0 +1,73 @@
+//! `infer bench`: milliseconds per frame on a device, beside the bundle's recorded test error.
+
+use std::time::Instant;
+
+use image::RgbImage;
+use sensor::CONTACT_THRESHOLD_MM;
+
+use crate::{InferError, Predictor};
+
+/// Median times (ms) of one frame's stages.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameTimes {
+    /// Input tensor to output tensor, synchronised (the network alone).
+    pub network_ms: f64,
+    /// PNG bytes to depth map and contact point cloud, the network always running.
+    pub end_to_end_ms: f64,
+    /// The same for a frame without contact, which the gate answers without the network.
+    pub gated_no_contact_ms: f64,
+    pub repeats: usize,
+}
+
+fn median_ms(repeats: usize, mut f: impl FnMut() -> Result<(), InferError>) -> Result<f64, InferError> {
+    f()?; // warm-up: first-use allocations, kernel compilation on GPUs
+    let mut times = Vec::with_capacity(repeats);
+    for _ in 0..repeats {
+        let start = Instant::now();
+        f()?;
+        times.push(start.elapsed().as_secs_f64() * 1e3);
+    }
+    times.sort_by(f64::total_cmp);
+    Ok(times[times.len() / 2])
+}
+
+/// Times `frame_png` (an encoded crop) through `predictor`; `no_contact_png` is a frame the
+/// gate should pass over (the unit's reference image).
+pub fn time_frames(
+    predictor: &Predictor,
+    frame_png: &[u8],
+    no_contact_png: &[u8],
+    repeats: usize,
+) -> Result<FrameTimes, InferError> {
+    let repeats = repeats.max(1);
+    let decode = |bytes: &[u8]| -> Result<RgbImage, InferError> {
+        Ok(image::load_from_memory(bytes)
+            .map_err(|e| InferError::File { path: "<frame>".into(), message: format!("not a readable image: {e}") })?
+            .to_rgb8())
+    };
+    let frame = decode(frame_png)?;
+    let input = predictor.input(std::slice::from_ref(&frame))?;
+    let network_ms = median_ms(repeats, || {
+        // Reading the output back waits for the device: the time includes the whole forward.
+        let out = predictor.forward(input.clone());
+        let _ = out.into_data();
+        Ok(())
+    })?;
+    let end_to_end_ms = median_ms(repeats, || {
+        let depth = predictor.predict_network(&[decode(frame_png)?])?.remove(0);
+        let cloud = predictor.point_cloud(&depth, CONTACT_THRESHOLD_MM);
+        std::hint::black_box(cloud);
+        Ok(())
+    })?;
+    let gated_no_contact_ms = median_ms(repeats, || {
+        let (depth, _) = predictor.predict_gated(&decode(no_contact_png)?)?;
+        std::hint::black_box(predictor.point_cloud(&depth, CONTACT_THRESHOLD_MM));
+        Ok(())
+    })?;
+    Ok(FrameTimes { network_ms, end_to_end_ms, gated_no_contact_ms, repeats })
+}
+
+/// The test error the bundle's training recorded (mean per-image L1 over useful pixels, mm).
+pub fn recorded_test_l1_mm(predictor: &Predictor) -> Option<f64> {
+    predictor.file.training.as_ref().and_then(|t| t.test_l1_mm())
+}

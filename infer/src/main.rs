@@ -1,0 +1,193 @@
+//! `infer`: depth maps, contact and point clouds from camera frames with an exported bundle.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use infer::eval::CONTACT_THRESHOLD_MM;
+use infer::{Predictor, write_ply};
+
+#[derive(Parser)]
+#[command(name = "infer", version, about = "DenseTact depth, contact and point clouds from camera frames")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Predict one frame: 16-bit micrometre depth PNG, false-colour PNG, PLY point cloud.
+    Predict {
+        #[arg(long)]
+        bundle: PathBuf,
+        /// The sensor's RGB crop (PNG), as the dataset stores it.
+        #[arg(long)]
+        image: PathBuf,
+        #[arg(long)]
+        depth_out: Option<PathBuf>,
+        /// False-colour depth for people.
+        #[arg(long)]
+        colour_out: Option<PathBuf>,
+        /// Point cloud of the contact patch (sensor frame, mm).
+        #[arg(long)]
+        ply: Option<PathBuf>,
+        /// Run the network even when the frame shows no contact.
+        #[arg(long)]
+        always: bool,
+        /// Keep the network's own reading of the reference frame (by default subtracted).
+        #[arg(long)]
+        no_tare: bool,
+    },
+    /// Per-image errors in mm over a dataset's split(s): stats.json, errors.csv, violin.svg.
+    Eval {
+        #[arg(long)]
+        bundle: PathBuf,
+        /// A dataset folder with images (`dataset generate --unit SEED`).
+        #[arg(long)]
+        data: PathBuf,
+        /// train, test or all.
+        #[arg(long, default_value = "all")]
+        split: String,
+        #[arg(long)]
+        out: PathBuf,
+        /// Keep the network's own reading of the reference frame (by default subtracted).
+        #[arg(long)]
+        no_tare: bool,
+    },
+    /// Median milliseconds per frame (network alone, end to end, a frame without contact),
+    /// beside the bundle's recorded test error.
+    Bench {
+        #[arg(long)]
+        bundle: PathBuf,
+        /// A frame with contact (PNG crop); default: the bundle's reference image.
+        #[arg(long)]
+        image: Option<PathBuf>,
+        /// flex (CPU) or wgpu.
+        #[arg(long, default_value = "flex")]
+        device: String,
+        #[arg(long, default_value_t = 20)]
+        repeats: usize,
+    },
+}
+
+fn bench(bundle: PathBuf, image: Option<PathBuf>, device: String, repeats: usize) -> Result<()> {
+    let dev = model::backend::working_device(&device).map_err(anyhow::Error::msg)?;
+    let predictor = Predictor::load(&bundle, &dev)?;
+    let reference = predictor.reference.as_ref().map(sensor::frame::encode_png_rgb);
+    let frame = match &image {
+        Some(path) => std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?,
+        None => reference.clone().context("the bundle has no reference image: give a frame with --image")?,
+    };
+    let no_contact = reference.as_ref().unwrap_or(&frame);
+    let t = infer::bench::time_frames(&predictor, &frame, no_contact, repeats)
+        .with_context(|| format!("{}", image.as_deref().unwrap_or(bundle.as_path()).display()))?;
+    let f = &predictor.file;
+    let test =
+        infer::bench::recorded_test_l1_mm(&predictor).map_or("not recorded".to_string(), |v| format!("{v:.4} mm"));
+    println!(
+        "bundle {}: {} DenseNet (growth {}, blocks {:?}), input {}x{}, device {device}",
+        bundle.display(),
+        f.model.encoder.preset_name().unwrap_or("custom"),
+        f.model.encoder.growth_rate,
+        f.model.encoder.block_config,
+        f.input_height_px,
+        f.input_width_px
+    );
+    println!("median of {} frames:", t.repeats);
+    println!("  network only                      {:9.2} ms", t.network_ms);
+    println!("  end to end (decode, depth, cloud) {:9.2} ms", t.end_to_end_ms);
+    match reference {
+        Some(_) => println!("  frame without contact (gated)     {:9.2} ms", t.gated_no_contact_ms),
+        None => println!("  frame without contact             no reference image in the bundle: no gate"),
+    }
+    println!("test L1 recorded by training (mean per image, useful pixels, network resolution): {test}");
+    println!("paper: 18.17 ms per frame, DenseNet-161 at 640x480 on a GPU; test L1 0.281 mm");
+    Ok(())
+}
+
+/// Loads a bundle, tared on its reference image unless `no_tare`.
+fn load(bundle: &std::path::Path, device: &burn::tensor::Device, no_tare: bool) -> Result<Predictor> {
+    let mut predictor = Predictor::load(bundle, device)?;
+    if no_tare {
+        predictor.set_tare(None)?;
+    }
+    Ok(predictor)
+}
+
+fn eval(bundle: PathBuf, data: PathBuf, split: String, out: PathBuf, no_tare: bool) -> Result<()> {
+    use formats::Split;
+    let splits: Vec<Split> = match split.as_str() {
+        "all" => vec![Split::Train, Split::Test],
+        "train" => vec![Split::Train],
+        "test" => vec![Split::Test],
+        other => anyhow::bail!("--split must be train, test or all, got {other:?}"),
+    };
+    let predictor = load(&bundle, &model::backend::default_device(), no_tare)?;
+    infer::eval::evaluate_dataset(&predictor, &data, &splits, &out)?;
+    println!("wrote {}/stats.json, errors.csv, violin.svg", out.display());
+    Ok(())
+}
+
+fn predict(
+    bundle: PathBuf,
+    image: PathBuf,
+    depth_out: Option<PathBuf>,
+    colour_out: Option<PathBuf>,
+    ply: Option<PathBuf>,
+    always: bool,
+    no_tare: bool,
+) -> Result<()> {
+    let predictor = load(&bundle, &model::backend::default_device(), no_tare)?;
+    let frame = image::open(&image).with_context(|| format!("{}: not a readable image", image.display()))?.to_rgb8();
+    let start = Instant::now();
+    let depth = if always {
+        predictor.predict_network(std::slice::from_ref(&frame)).map(|mut v| v.remove(0))
+    } else {
+        predictor.predict(&frame)
+    }
+    .with_context(|| format!("{}", image.display()))?;
+    let ms = start.elapsed().as_secs_f64() * 1e3;
+    let contact = Predictor::contact_mask(&depth, CONTACT_THRESHOLD_MM);
+    let pressed = contact.iter().filter(|&&c| c).count();
+    println!(
+        "{}: {pressed} contact pixels ({:.2} % of the useful disk), max depth {:.3} mm, {ms:.1} ms",
+        image.display(),
+        100.0 * pressed as f64 / predictor.mask.iter().filter(|&&m| m).count().max(1) as f64,
+        depth.max_mm()
+    );
+    if let Some(path) = depth_out {
+        formats::fs::write_atomic(&path, &depth.to_png_um())?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = colour_out {
+        let img = infer::colour::false_colour(&depth, &predictor.mask, predictor.file.sensor.max_depth_mm as f32);
+        formats::fs::write_atomic(&path, &sensor::frame::encode_png_rgb(&img))?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = ply {
+        let cloud = predictor.point_cloud(&depth, CONTACT_THRESHOLD_MM);
+        write_ply(&path, &cloud)?;
+        println!("wrote {} ({} points)", path.display(), cloud.points_mm.len());
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    sensor::alloc::keep_freed_memory();
+    let result = match Cli::parse().command {
+        Command::Predict { bundle, image, depth_out, colour_out, ply, always, no_tare } => {
+            predict(bundle, image, depth_out, colour_out, ply, always, no_tare)
+        }
+        Command::Eval { bundle, data, split, out, no_tare } => eval(bundle, data, split, out, no_tare),
+        Command::Bench { bundle, image, device, repeats } => bench(bundle, image, device, repeats),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,205 @@
+//! Prediction from a bundle: the contact gate, shapes and masks, bad frames, the CLI's files, and
+//! the crate's dependencies.
+
+use std::path::Path;
+use std::process::Command;
+
+use dataset::{Renderer, SensorUnit};
+use infer::Predictor;
+use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, INPUT_ENCODING, write_bundle};
+use model::{DenseDepthConfig, DenseNetConfig, DepthScale};
+
+/// A bundle with an untrained tiny network for simulated unit 3, with its reference image.
+fn bundle(dir: &Path) -> Renderer {
+    let unit = SensorUnit::from_seed(3, 25.0);
+    let renderer = Renderer::for_crop(&unit);
+    let device = model::backend::default_device();
+    device.seed(1);
+    let net = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&device);
+    let file = BundleFile {
+        format_version: BUNDLE_FORMAT_VERSION,
+        model: DenseDepthConfig::new(DenseNetConfig::tiny()),
+        input_height_px: 64,
+        input_width_px: 64,
+        input_encoding: INPUT_ENCODING.into(),
+        depth_scale: DepthScale::paper(unit.sensor.max_depth_mm as f32),
+        sensor: unit.sensor.clone(),
+        reference_image: None,
+        training: None,
+    };
+    let reference = sensor::frame::encode_png_rgb(&renderer.reference_image(1));
+    write_bundle(dir, &net, &file, Some(&reference)).unwrap();
+    renderer
+}
+
+/// A frame with a 1 mm dent in the middle.
+fn pressed(renderer: &Renderer) -> (Vec<f32>, image::RgbImage) {
+    let n = renderer.grid().width as usize;
+    let mut depth = vec![0.0; n * n];
+    for y in 260..310 {
+        for x in 260..310 {
+            depth[y * n + x] = 1.0;
+        }
+    }
+    let img = renderer.render(&depth, Some(9));
+    (depth, img)
+}
+
+#[test]
+fn frames_without_contact_skip_the_network_and_others_run_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = bundle(&dir);
+    let device = model::backend::default_device();
+    let p = Predictor::load(&dir, &device).unwrap();
+    assert!(p.reference.is_some());
+
+    // A noisy frame of the untouched sensor: no contact, zeros.
+    let zeros = vec![0.0; renderer.grid().len()];
+    let quiet = renderer.render(&zeros, Some(4));
+    assert!(!p.has_contact(&quiet));
+    let d = p.predict(&quiet).unwrap();
+    assert!(d.depth_mm.iter().all(|&v| v == 0.0));
+
+    let (_, frame) = pressed(&renderer);
+    assert!(p.has_contact(&frame));
+    let d = p.predict(&frame).unwrap();
+    assert_eq!(d.size_px, 570);
+    let max = p.file.sensor.max_depth_mm as f32;
+    for (v, &m) in d.depth_mm.iter().zip(&p.mask) {
+        assert!(v.is_finite() && (0.0..=max).contains(v));
+        if !m {
+            assert_eq!(*v, 0.0, "outside the useful disk depth is zero");
+        }
+    }
+    // Batched prediction equals one frame at a time.
+    let batch = p.predict_network(&[frame.clone(), quiet.clone()]).unwrap();
+    assert_eq!(batch[0], p.predict_network(std::slice::from_ref(&frame)).unwrap()[0]);
+    assert_eq!(batch[0], d);
+
+    let small = image::RgbImage::new(100, 80);
+    let e = p.predict(&small).unwrap_err().to_string();
+    assert!(e.contains("100x80") && e.contains("570x570"), "{e}");
+}
+
+#[test]
+fn the_tare_zeroes_the_reference_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    bundle(&dir);
+    let mut p = Predictor::load(&dir, &model::backend::default_device()).unwrap();
+    let reference = p.reference.clone().unwrap();
+    assert!(p.is_tared(), "a bundle with a reference image loads tared");
+    let tared = p.predict_network(std::slice::from_ref(&reference)).unwrap().remove(0);
+    assert!(tared.depth_mm.iter().all(|&v| v == 0.0), "tared, the reference itself reads zero");
+
+    // Taring on another frame moves the zero there; the two frames then read each other's
+    // difference, which cannot be zero both ways unless the tare does nothing.
+    let one = |p: &Predictor, f: &image::RgbImage| p.predict_network(std::slice::from_ref(f)).unwrap().remove(0);
+    let other = image::RgbImage::from_pixel(reference.width(), reference.height(), image::Rgb([128, 128, 128]));
+    let other_on_reference = one(&p, &other);
+    p.set_tare(Some(&other)).unwrap();
+    assert!(one(&p, &other).depth_mm.iter().all(|&v| v == 0.0));
+    let reference_on_other = one(&p, &reference);
+    assert!(other_on_reference.max_mm() > 0.0 || reference_on_other.max_mm() > 0.0, "the tare changed nothing");
+    let small = image::RgbImage::new(10, 10);
+    assert!(p.set_tare(Some(&small)).is_err(), "a tare frame of the wrong size is an error");
+    assert!(p.is_tared(), "and leaves the tare as it was");
+    assert!(one(&p, &other).depth_mm.iter().all(|&v| v == 0.0), "still tared on the other frame");
+    p.set_tare(None).unwrap();
+    assert!(!p.is_tared());
+}
+
+#[test]
+fn the_command_writes_depth_colour_and_a_point_cloud() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = bundle(&dir);
+    let (_, frame) = pressed(&renderer);
+    let image = tmp.path().join("frame.png");
+    frame.save(&image).unwrap();
+    let out = |name: &str| tmp.path().join(name).to_str().unwrap().to_string();
+    let r = Command::new(env!("CARGO_BIN_EXE_infer"))
+        .args(["predict", "--bundle", dir.to_str().unwrap(), "--image", image.to_str().unwrap()])
+        .args(["--depth-out", &out("d.png"), "--colour-out", &out("c.png"), "--ply", &out("p.ply"), "--always"])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let depth = sensor::DepthMap::load_png_um(Path::new(&out("d.png"))).unwrap();
+    assert_eq!(depth.size_px, 570);
+    assert_eq!(image::open(out("c.png")).unwrap().to_rgb8().dimensions(), (570, 570));
+    let ply = std::fs::read(out("p.ply")).unwrap();
+    assert!(ply.starts_with(b"ply\nformat binary_little_endian 1.0\n"));
+
+    let r = Command::new(env!("CARGO_BIN_EXE_infer"))
+        .args(["predict", "--bundle", tmp.path().join("nothing").to_str().unwrap(), "--image", image.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("bundle.json"));
+}
+
+#[test]
+fn infer_depends_on_neither_autodiff_nor_training() {
+    let r = Command::new(env!("CARGO"))
+        .args(["tree", "-p", "infer", "-e", "normal", "--prefix", "none", "--offline"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let tree = String::from_utf8_lossy(&r.stdout);
+    assert!(tree.contains("burn-flex"), "the tree lists Burn: {tree}");
+    for banned in ["burn-autodiff", "burn-train", "train v", "burn-optim"] {
+        assert!(!tree.contains(banned), "infer must not depend on {banned}");
+    }
+}
+
+#[test]
+fn eval_writes_statistics_per_split_errors_and_a_violin_plot() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = bundle(&dir);
+    let data = tmp.path().join("data");
+    let kit = dataset::Kit::procedural(25.0);
+    let params = formats::dataset::GeneratorParams {
+        unit: Some(3),
+        test_fraction: 0.3,
+        ..formats::dataset::GeneratorParams::new(4, 10, &kit.source)
+    };
+    let unit = renderer.unit().clone();
+    dataset::generate::Generator {
+        out: data.clone(),
+        sensor: &unit.sensor,
+        kit: &kit,
+        params,
+        skipping: dataset::Skipping::On,
+        renderer: Some(&renderer),
+    }
+    .run()
+    .unwrap();
+    let out = tmp.path().join("eval");
+    let r = Command::new(env!("CARGO_BIN_EXE_infer"))
+        .args(["eval", "--bundle", dir.to_str().unwrap(), "--data", data.to_str().unwrap()])
+        .args(["--split", "all", "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
+    let mut n = 0;
+    for split in ["train", "test"] {
+        for key in ["l1_mm", "l2_mm", "contact_l1_mm", "zero_l1_mm", "zero_contact_l1_mm"] {
+            assert!(stats[split][key]["mean"].is_number(), "{split}.{key}: {}", stats[split][key]);
+        }
+        n += stats[split]["l1_mm"]["n"].as_u64().unwrap();
+    }
+    assert_eq!(n, 10);
+    let csv = std::fs::read_to_string(out.join("errors.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 11);
+    assert!(std::fs::read_to_string(out.join("violin.svg")).unwrap().contains("<polygon"));
+    let r = Command::new(env!("CARGO_BIN_EXE_infer"))
+        .args(["eval", "--bundle", dir.to_str().unwrap(), "--data", data.to_str().unwrap()])
+        .args(["--split", "val", "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("--split"));
+}

@@ -1,0 +1,297 @@
+//! The convolution's forward pass as matrix products over gathered input, on plain `f32` slices.
+//!
+//! Each task takes a range of output positions of one image. A 1x1 convolution multiplies the
+//! image itself; any other kernel first gathers (im2col) a block of channels times taps for
+//! those positions into a per-thread buffer, so that one product runs over `channels * k * k`
+//! at once instead of `k * k` thin products each re-reading the output. Padding is never
+//! materialised: the gather writes zeros where a tap falls outside the image. What the network
+//! does right before and after a convolution rides along while the data is in cache: an input
+//! `Prologue` (eval-mode batch norm + ReLU) applied as values are gathered, and an output
+//! `Epilogue` (bias or folded batch norm, then ReLU or LeakyReLU).
+
+use std::ops::Range;
+
+use rayon::prelude::*;
+
+use super::gemm_conv::{ConvShape, SharedMut, column_chunks, matmul};
+use crate::network::Activation;
+
+/// Output positions per task when the input is gathered, and the most gathered rows (channel
+/// and tap pairs) at a time: together about 2 MB per thread, which the product reads from cache.
+const GATHER_COLUMNS: usize = 512;
+const GATHER_ROWS: usize = 1152;
+/// Output positions per task for a 1x1 convolution read in place.
+const POINTWISE_COLUMNS: usize = 2048;
+
+thread_local! {
+    /// Each worker's gathered block, kept between calls so it is allocated once.
+    static GATHERED: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// `max(0, x * scale[c] + shift[c])` on each input channel `c` before the convolution: an
+/// eval-mode batch norm and ReLU. Padding stays zero, as when the ReLU's output is padded.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Prologue<'a> {
+    pub scale: &'a [f32],
+    pub shift: &'a [f32],
+}
+
+/// `activation(y * scale[o] + shift[o])` on each output channel `o`, where each is optional.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Epilogue<'a> {
+    pub scale: Option<&'a [f32]>,
+    pub shift: Option<&'a [f32]>,
+    pub activation: Activation,
+}
+
+impl<'a> Epilogue<'a> {
+    pub fn bias(bias: Option<&'a [f32]>, activation: Activation) -> Self {
+        Epilogue { scale: None, shift: bias, activation }
+    }
+
+    fn is_identity(&self) -> bool {
+        self.scale.is_none() && self.shift.is_none() && self.activation == Activation::Identity
+    }
+
+    fn apply(&self, channel: usize, row: &mut [f32]) {
+        let scale = self.scale.map_or(1.0, |s| s[channel]);
+        let shift = self.shift.map_or(0.0, |s| s[channel]);
+        match self.activation {
+            Activation::Identity => row.iter_mut().for_each(|v| *v = *v * scale + shift),
+            Activation::Relu => row.iter_mut().for_each(|v| *v = (*v * scale + shift).max(0.0)),
+            Activation::Leaky(slope) => row.iter_mut().for_each(|v| {
+                let slope = slope as f32;
+                let y = *v * scale + shift;
+                *v = if y >= 0.0 { y } else { y * slope };
+            }),
+        }
+    }
+}
+
+/// Output indices `i` whose input index `i * stride + tap - padding` lies in `0..input`.
+fn valid_span(output: usize, input: usize, tap: usize, padding: usize, stride: usize) -> Range<usize> {
+    let lo = padding.saturating_sub(tap).div_ceil(stride);
+    let hi = if input + padding > tap { ((input + padding - tap - 1) / stride + 1).min(output) } else { 0 };
+    lo.min(hi)..hi
+}
+
+/// Rows `channels` x taps of the gathered input for output positions `cols`: row
+/// `(ic - channels.start) * k * k + tap`, column `j` holds the value under `tap` for output
+/// position `cols.start + j` (zero in the padding), through the prologue if there is one.
+fn gather(
+    into: &mut [f32],
+    image: &[f32],
+    s: &ConvShape,
+    prologue: Option<Prologue>,
+    channels: Range<usize>,
+    cols: Range<usize>,
+) {
+    let (k, st, p, wo) = (s.kernel, s.stride, s.padding, s.out_width());
+    let (ho, plane) = (s.out_height(), s.height * s.width);
+    let n = cols.len();
+    for (i, ic) in channels.enumerate() {
+        let input = &image[ic * plane..][..plane];
+        let (scale, shift) = prologue.map_or((1.0, 0.0), |q| (q.scale[ic], q.shift[ic]));
+        for tap in 0..k * k {
+            let row = &mut into[(i * k * k + tap) * n..][..n];
+            let (ky, kx) = (tap / k, tap % k);
+            let (rows, xs) = (valid_span(ho, s.height, ky, p, st), valid_span(wo, s.width, kx, p, st));
+            let mut pos = cols.start;
+            while pos < cols.end {
+                let (y, x0) = (pos / wo, pos % wo);
+                let x1 = wo.min(x0 + cols.end - pos);
+                let dst = &mut row[pos - cols.start..][..x1 - x0];
+                let (lo, hi) = (xs.start.clamp(x0, x1), xs.end.clamp(x0, x1));
+                if !rows.contains(&y) || lo >= hi {
+                    dst.fill(0.0);
+                } else {
+                    dst[..lo - x0].fill(0.0);
+                    dst[hi - x0..].fill(0.0);
+                    let src = &input[(y * st + ky - p) * s.width..][..s.width];
+                    let start = lo * st + kx - p;
+                    let dst = &mut dst[lo - x0..hi - x0];
+                    match (prologue.is_some(), st) {
+                        (false, 1) => dst.copy_from_slice(&src[start..start + dst.len()]),
+                        (false, _) => dst.iter_mut().zip(src[start..].iter().step_by(st)).for_each(|(d, v)| *d = *v),
+                        (true, 1) => {
+                            dst.iter_mut().zip(&src[start..]).for_each(|(d, v)| *d = (v * scale + shift).max(0.0))
+                        }
+                        (true, _) => dst
+                            .iter_mut()
+                            .zip(src[start..].iter().step_by(st))
+                            .for_each(|(d, v)| *d = (v * scale + shift).max(0.0)),
+                    }
+                }
+                pos += x1 - x0;
+            }
+        }
+    }
+}
+
+/// The convolution of one image `image` ([channels_in, height, width]) with `weight`
+/// ([channels_out, channels_in, kernel, kernel]) into `out` ([channels_out, out_height *
+/// out_width]), with the prologue and epilogue. `s.batch` is ignored.
+pub(crate) fn forward_image(
+    image: &[f32],
+    weight: &[f32],
+    s: &ConvShape,
+    prologue: Option<Prologue>,
+    epilogue: &Epilogue,
+    out: &mut [f32],
+) {
+    let (c, o, kk) = (s.channels_in, s.channels_out, s.kernel * s.kernel);
+    let positions = s.out_height() * s.out_width();
+    assert_eq!(image.len(), c * s.height * s.width, "conv input size");
+    assert_eq!(weight.len(), o * c * kk, "conv weight size");
+    assert_eq!(out.len(), o * positions, "conv output size");
+    let in_place = s.is_pointwise() && prologue.is_none();
+    let block = (GATHER_ROWS / kk).clamp(1, c.max(1));
+    let dst = SharedMut(out.as_mut_ptr());
+    let max = if in_place { POINTWISE_COLUMNS } else { GATHER_COLUMNS };
+    column_chunks(positions, 64, max).into_par_iter().for_each(|cols| {
+        let n = cols.len();
+        if in_place {
+            // SAFETY: tasks write disjoint columns of the [o, positions] output.
+            unsafe {
+                matmul(
+                    [o, n, c],
+                    dst.at(cols.start),
+                    [1, positions],
+                    false,
+                    weight.as_ptr(),
+                    [1, c],
+                    image.as_ptr().add(cols.start),
+                    [1, positions],
+                );
+            }
+        } else {
+            GATHERED.with_borrow_mut(|buf| {
+                if buf.len() < block * kk * n {
+                    buf.resize(block * kk * n, 0.0);
+                }
+                for c0 in (0..c).step_by(block) {
+                    let channels = c0..(c0 + block).min(c);
+                    let rows = channels.len() * kk;
+                    gather(&mut buf[..rows * n], image, s, prologue, channels, cols.clone());
+                    // SAFETY: as above; the weight's columns `c0 * kk ..` of row stride `c * kk`.
+                    unsafe {
+                        matmul(
+                            [o, n, rows],
+                            dst.at(cols.start),
+                            [1, positions],
+                            c0 > 0,
+                            weight.as_ptr().add(c0 * kk),
+                            [1, c * kk],
+                            buf.as_ptr(),
+                            [1, n],
+                        );
+                    }
+                }
+            });
+        }
+        if !epilogue.is_identity() {
+            for oc in 0..o {
+                // SAFETY: row `oc` of this task's columns, inside `out`.
+                epilogue.apply(oc, unsafe { std::slice::from_raw_parts_mut(dst.at(oc * positions + cols.start), n) });
+            }
+        }
+    });
+}
+
+/// The convolution of `x` ([batch, channels_in, height, width]) with `weight` plus `bias`:
+/// [batch, channels_out, out_height, out_width].
+pub(crate) fn forward(x: &[f32], weight: &[f32], bias: Option<&[f32]>, s: &ConvShape) -> Vec<f32> {
+    forward_with(x, weight, s, None, &Epilogue::bias(bias, Activation::Identity))
+}
+
+/// `forward` with a prologue and an epilogue.
+pub(crate) fn forward_with(
+    x: &[f32],
+    weight: &[f32],
+    s: &ConvShape,
+    prologue: Option<Prologue>,
+    epilogue: &Epilogue,
+) -> Vec<f32> {
+    let (image_len, out_len) = (s.channels_in * s.height * s.width, s.channels_out * s.out_height() * s.out_width());
+    assert_eq!(x.len(), s.batch * image_len, "conv input size");
+    let mut out = vec![0.0f32; s.batch * out_len];
+    if image_len > 0 && out_len > 0 {
+        for (image, dst) in x.chunks_exact(image_len).zip(out.chunks_exact_mut(out_len)) {
+            forward_image(image, weight, s, prologue, epilogue, dst);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn values(n: usize, seed: u32) -> Vec<f32> {
+        (0..n)
+            .map(|i| ((i as u32).wrapping_mul(2654435761).wrapping_add(seed) >> 8) as f32 / (1 << 24) as f32 - 0.5)
+            .collect()
+    }
+
+    #[test]
+    fn valid_span_is_where_the_tap_lands_inside() {
+        for (output, input, padding, stride, kernel) in
+            [(5, 5, 1, 1, 3), (4, 8, 3, 2, 7), (3, 9, 0, 3, 3), (1, 1, 2, 1, 5)]
+        {
+            for tap in 0..kernel {
+                let span = valid_span(output, input, tap, padding, stride);
+                for i in 0..output {
+                    let at = (i * stride + tap) as isize - padding as isize;
+                    assert_eq!(
+                        span.contains(&i),
+                        at >= 0 && at < input as isize,
+                        "{output} {input} {padding} {stride} {tap} {i}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// The prologue equals normalising and clamping the input first (padding stays zero), and
+    /// the epilogue equals scaling, shifting and activating the output afterwards.
+    #[test]
+    fn prologue_and_epilogue_equal_separate_passes() {
+        for (kernel, padding, stride) in [(1, 0, 1), (3, 1, 1), (3, 1, 2)] {
+            let s =
+                ConvShape { batch: 2, channels_in: 4, channels_out: 3, height: 6, width: 7, kernel, padding, stride };
+            let plane = s.height * s.width;
+            let x = values(s.batch * 4 * plane, 1);
+            let weight = values(3 * 4 * kernel * kernel, 2);
+            let (scale_in, shift_in) = (values(4, 3), values(4, 4));
+            let (scale_out, shift_out) = (values(3, 5), values(3, 6));
+            let normalised: Vec<f32> = x
+                .iter()
+                .enumerate()
+                .map(|(i, v)| (v * scale_in[(i / plane) % 4] + shift_in[(i / plane) % 4]).max(0.0))
+                .collect();
+            let plain = forward(&normalised, &weight, None, &s);
+            let out_plane = s.out_height() * s.out_width();
+            for activation in [Activation::Identity, Activation::Relu, Activation::Leaky(0.2)] {
+                let epilogue = Epilogue { scale: Some(&scale_out), shift: Some(&shift_out), activation };
+                let prologue = Prologue { scale: &scale_in, shift: &shift_in };
+                let fused = forward_with(&x, &weight, &s, Some(prologue), &epilogue);
+                for (i, (f, p)) in fused.iter().zip(&plain).enumerate() {
+                    let o = (i / out_plane) % 3;
+                    let y = p * scale_out[o] + shift_out[o];
+                    let want = match activation {
+                        Activation::Identity => y,
+                        Activation::Relu => y.max(0.0),
+                        Activation::Leaky(slope) => {
+                            if y >= 0.0 {
+                                y
+                            } else {
+                                y * slope as f32
+                            }
+                        }
+                    };
+                    assert!((f - want).abs() <= 1e-5, "{s:?} {activation:?} [{i}]: {f} vs {want}");
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,365 @@
+//! Convolution gradients as matrix products over the zero-padded image, on plain `f32` slices
+//! (the forward is `conv_forward`).
+//!
+//! With the image padded and flattened row by row (padded width `wp`), the input under kernel
+//! tap `(ky, kx)` for every output position is one contiguous window of the flat image, shifted
+//! by `ky * wp + kx`: a matrix with ordinary strides. So the weight gradient is `k * k` products
+//! whose inner dimension runs over the whole image. flex lowers the weight gradient to a
+//! convolution with the batch as channels, which becomes one thin matrix product per input
+//! channel (about 4x slower for DenseNet's 3x3 layers here); this form keeps every product
+//! large. Each output row carries `k - 1` padding columns, zero in the spread output gradient.
+//! The input gradient is a forward convolution with the weight transposed and flipped.
+
+use rayon::prelude::*;
+
+/// Shapes of one convolution: `x` is `[batch, channels_in, height, width]`, the weight
+/// `[channels_out, channels_in, kernel, kernel]`, dilation 1, `padding` on every side. Only the
+/// forward takes a `stride` other than 1 (the gradients assert it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct ConvShape {
+    pub batch: usize,
+    pub channels_in: usize,
+    pub channels_out: usize,
+    pub height: usize,
+    pub width: usize,
+    pub kernel: usize,
+    pub padding: usize,
+    pub stride: usize,
+}
+
+impl ConvShape {
+    pub fn out_height(&self) -> usize {
+        (self.height + 2 * self.padding - self.kernel) / self.stride + 1
+    }
+
+    pub fn out_width(&self) -> usize {
+        (self.width + 2 * self.padding - self.kernel) / self.stride + 1
+    }
+
+    /// Row stride of the padded image (and of the spread output gradient).
+    fn padded_width(&self) -> usize {
+        self.width + 2 * self.padding
+    }
+
+    /// The 1x1 unpadded case needs no padded copy: the image itself is the matrix.
+    pub(crate) fn is_pointwise(&self) -> bool {
+        self.kernel == 1 && self.padding == 0 && self.stride == 1
+    }
+
+    /// Elements per channel of the padded image: one spare row at the bottom, because the window
+    /// of the last tap runs `kernel - 1` elements past the last padded row.
+    fn padded_len(&self) -> usize {
+        if self.is_pointwise() {
+            self.height * self.width
+        } else {
+            (self.height + 2 * self.padding + 1) * self.padded_width()
+        }
+    }
+
+    /// Columns of one output matrix: output rows at the padded row stride.
+    fn columns(&self) -> usize {
+        self.out_height() * self.padded_width()
+    }
+
+    /// The convolution that gives the input gradient: the output gradient convolved with the
+    /// weight transposed and flipped, padded by `kernel - 1 - padding`.
+    pub fn transposed(&self) -> ConvShape {
+        assert_eq!(self.stride, 1, "gradients of strided convolutions are Burn's");
+        ConvShape {
+            batch: self.batch,
+            channels_in: self.channels_out,
+            channels_out: self.channels_in,
+            height: self.out_height(),
+            width: self.out_width(),
+            kernel: self.kernel,
+            padding: self.kernel - 1 - self.padding,
+            stride: 1,
+        }
+    }
+}
+
+/// A pointer that rayon tasks may share to write disjoint parts of one buffer.
+#[derive(Clone, Copy)]
+pub(crate) struct SharedMut(pub(crate) *mut f32);
+// SAFETY: a `SharedMut` is only made from a `&mut [f32]` that outlives the parallel loop using
+// it (`conv_forward::forward_image`), and each task writes only its own disjoint columns, so
+// sending the pointer to another thread creates no aliasing writes.
+unsafe impl Send for SharedMut {}
+// SAFETY: as for `Send`: shared references to it only ever copy the pointer out, and every write
+// through the copies goes to a range no other task touches.
+unsafe impl Sync for SharedMut {}
+
+impl SharedMut {
+    /// Through a method, so that closures capture the whole (Send) wrapper, not the raw field.
+    pub(crate) fn at(self, offset: usize) -> *mut f32 {
+        self.0.wrapping_add(offset)
+    }
+}
+
+/// Columns per weight-gradient task, so that a task's window of the image stays in cache across
+/// the `k * k` products that revisit it.
+const MAX_COLUMNS: usize = 2048;
+
+/// Splits `n` columns into ranges of at most `max` and about two per thread, none narrower than
+/// `min` unless `n` is.
+pub(crate) fn column_chunks(n: usize, min: usize, max: usize) -> Vec<std::ops::Range<usize>> {
+    let want = (2 * rayon::current_num_threads()).max(1);
+    let size = n.div_ceil(want).clamp(min, max.max(min)).min(n.max(1));
+    (0..n).step_by(size).map(|start| start..(start + size).min(n)).collect()
+}
+
+/// Copies `planes` ([planes, rows, width], dense) into `into` ([planes, plane_len]), each row
+/// at `offset + row * stride` of its plane; the rest of `into` keeps its zeros.
+fn spread_rows(
+    into: &mut [f32],
+    plane_len: usize,
+    planes: &[f32],
+    [rows, width]: [usize; 2],
+    stride: usize,
+    offset: usize,
+) {
+    into.par_chunks_mut(plane_len).zip(planes.par_chunks(rows * width)).for_each(|(dst, src)| {
+        for (row, src_row) in src.chunks_exact(width).enumerate() {
+            dst[offset + row * stride..][..width].copy_from_slice(src_row);
+        }
+    });
+}
+
+/// One image `[channels, height, width]` zero-padded into `[channels, padded_len]`.
+fn pad_image(image: &[f32], s: &ConvShape, channels: usize) -> Vec<f32> {
+    let (p, wp, len) = (s.padding, s.padded_width(), s.padded_len());
+    let mut padded = vec![0.0f32; channels * len];
+    spread_rows(&mut padded, len, image, [s.height, s.width], wp, p * wp + p);
+    padded
+}
+
+/// `dst[m, n] (+)= lhs[m, k] * rhs[k, n]` with element strides (column, row) for each matrix.
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn matmul(
+    [m, n, k]: [usize; 3],
+    dst: *mut f32,
+    [dst_cs, dst_rs]: [usize; 2],
+    accumulate: bool,
+    lhs: *const f32,
+    [lhs_cs, lhs_rs]: [usize; 2],
+    rhs: *const f32,
+    [rhs_cs, rhs_rs]: [usize; 2],
+) {
+    // SAFETY: the callers pass pointers and strides that stay inside their buffers.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst,
+            dst_cs as isize,
+            dst_rs as isize,
+            accumulate,
+            lhs,
+            lhs_cs as isize,
+            lhs_rs as isize,
+            rhs,
+            rhs_cs as isize,
+            rhs_rs as isize,
+            1.0f32,
+            1.0f32,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        )
+    }
+}
+
+/// The gradient of the input: `grad` ([batch, channels_out, out_height, out_width]) convolved
+/// with the weight transposed and flipped.
+pub(crate) fn input_grad(grad: &[f32], weight: &[f32], s: &ConvShape) -> Vec<f32> {
+    let (c, o, k) = (s.channels_in, s.channels_out, s.kernel);
+    let mut flipped = vec![0.0f32; weight.len()];
+    for oc in 0..o {
+        for ic in 0..c {
+            for tap in 0..k * k {
+                flipped[(ic * o + oc) * k * k + (k * k - 1 - tap)] = weight[(oc * c + ic) * k * k + tap];
+            }
+        }
+    }
+    super::conv_forward::forward(grad, &flipped, None, &s.transposed())
+}
+
+/// The gradient of the weight: [channels_out, channels_in, kernel, kernel]. The inner dimension
+/// (every output position of every image) is split across threads, each summing into its own
+/// buffer, because the product's outer dimensions are too small to split well.
+pub(crate) fn weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
+    assert_eq!(s.stride, 1, "gradients of strided convolutions are Burn's");
+    let (c, o, k) = (s.channels_in, s.channels_out, s.kernel);
+    let (ho, wo, wp, n, len) = (s.out_height(), s.out_width(), s.padded_width(), s.columns(), s.padded_len());
+    assert_eq!(x.len(), s.batch * c * s.height * s.width, "conv input size");
+    assert_eq!(grad.len(), s.batch * o * ho * wo, "conv output gradient size");
+    let size = o * c * k * k;
+    let mut total = vec![0.0f32; size];
+    for b in 0..s.batch {
+        let image = &x[b * c * s.height * s.width..][..c * s.height * s.width];
+        let image_grad = &grad[b * o * ho * wo..][..o * ho * wo];
+        let (padded, wide);
+        let (flat, g) = if s.is_pointwise() {
+            (image, image_grad)
+        } else {
+            padded = pad_image(image, s, c);
+            // The output gradient at the padded row stride, zero in the padding columns.
+            let mut spread = vec![0.0f32; o * n];
+            spread_rows(&mut spread, n, image_grad, [ho, wo], wp, 0);
+            wide = spread;
+            (&padded[..], &wide[..])
+        };
+        // Each rayon split sums its column ranges into one buffer of its own.
+        let image_total = column_chunks(n, 512, MAX_COLUMNS)
+            .into_par_iter()
+            .fold(
+                || vec![0.0f32; size],
+                |mut part, cols| {
+                    for tap in 0..k * k {
+                        let shift = (tap / k) * wp + tap % k;
+                        // SAFETY: `part` is [o, c, k, k] written at stride k*k from `tap`; the
+                        // window of `flat` ends at most at `padded_len`.
+                        unsafe {
+                            matmul(
+                                [o, c, cols.len()],
+                                part.as_mut_ptr().add(tap),
+                                [k * k, c * k * k],
+                                true,
+                                g.as_ptr().add(cols.start),
+                                [1, n],
+                                flat.as_ptr().add(shift + cols.start),
+                                [len, 1],
+                            );
+                        }
+                    }
+                    part
+                },
+            )
+            .reduce_with(|mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                a
+            });
+        if let Some(image_total) = image_total {
+            total.iter_mut().zip(&image_total).for_each(|(t, p)| *t += p);
+        }
+    }
+    total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernels::conv_forward::forward;
+
+    /// Direct convolution by its definition, for reference.
+    fn naive(x: &[f32], weight: &[f32], s: &ConvShape) -> Vec<f32> {
+        let (c, o, k, p, st) = (s.channels_in, s.channels_out, s.kernel, s.padding as isize, s.stride as isize);
+        let (h, w, ho, wo) = (s.height, s.width, s.out_height(), s.out_width());
+        let mut out = vec![0.0f32; s.batch * o * ho * wo];
+        for b in 0..s.batch {
+            for oc in 0..o {
+                for i in 0..ho {
+                    for j in 0..wo {
+                        let mut acc = 0.0f64;
+                        for ic in 0..c {
+                            for ky in 0..k {
+                                for kx in 0..k {
+                                    let (y, xx) =
+                                        (i as isize * st + ky as isize - p, j as isize * st + kx as isize - p);
+                                    if y >= 0 && xx >= 0 && (y as usize) < h && (xx as usize) < w {
+                                        acc += (x[((b * c + ic) * h + y as usize) * w + xx as usize]
+                                            * weight[((oc * c + ic) * k + ky) * k + kx])
+                                            as f64;
+                                    }
+                                }
+                            }
+                        }
+                        out[((b * o + oc) * ho + i) * wo + j] = acc as f32;
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    fn values(n: usize, seed: u32) -> Vec<f32> {
+        (0..n)
+            .map(|i| ((i as u32).wrapping_mul(2654435761).wrapping_add(seed) >> 8) as f32 / (1u32 << 24) as f32 - 0.5)
+            .collect()
+    }
+
+    fn close(a: &[f32], b: &[f32], what: &str) {
+        assert_eq!(a.len(), b.len(), "{what}: length");
+        let scale = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+        for (i, (x, y)) in a.iter().zip(b).enumerate() {
+            assert!((x - y).abs() <= 1e-5 * scale.max(1.0), "{what}[{i}]: {x} vs {y}");
+        }
+    }
+
+    const SHAPES: [ConvShape; 4] = [
+        ConvShape { batch: 2, channels_in: 5, channels_out: 3, height: 7, width: 9, kernel: 3, padding: 1, stride: 1 },
+        ConvShape { batch: 1, channels_in: 4, channels_out: 6, height: 5, width: 4, kernel: 1, padding: 0, stride: 1 },
+        ConvShape { batch: 2, channels_in: 3, channels_out: 2, height: 6, width: 8, kernel: 3, padding: 0, stride: 1 },
+        ConvShape { batch: 1, channels_in: 2, channels_out: 3, height: 6, width: 5, kernel: 5, padding: 2, stride: 1 },
+    ];
+
+    /// Forward-only shapes: strided, like DenseNet's 7x7 stem.
+    const STRIDED: [ConvShape; 2] = [
+        ConvShape {
+            batch: 2,
+            channels_in: 3,
+            channels_out: 5,
+            height: 11,
+            width: 10,
+            kernel: 7,
+            padding: 3,
+            stride: 2,
+        },
+        ConvShape { batch: 1, channels_in: 2, channels_out: 3, height: 9, width: 9, kernel: 3, padding: 0, stride: 3 },
+    ];
+
+    #[test]
+    fn forward_matches_the_definition() {
+        for s in SHAPES.into_iter().chain(STRIDED) {
+            let x = values(s.batch * s.channels_in * s.height * s.width, 1);
+            let weight = values(s.channels_out * s.channels_in * s.kernel * s.kernel, 2);
+            let bias = values(s.channels_out, 3);
+            let mut expected = naive(&x, &weight, &s);
+            let plane = s.out_height() * s.out_width();
+            for (i, v) in expected.iter_mut().enumerate() {
+                *v += bias[(i / plane) % s.channels_out];
+            }
+            close(&forward(&x, &weight, Some(&bias), &s), &expected, &format!("{s:?}"));
+        }
+    }
+
+    /// The gradients against the definition: for the loss `sum(g * conv(x, w))`, the weight
+    /// gradient's entry is the forward with a one-hot weight, and the input gradient's entry
+    /// the forward with a one-hot input.
+    #[test]
+    fn gradients_match_one_hot_forwards() {
+        for s in SHAPES {
+            let (nx, nw) =
+                (s.batch * s.channels_in * s.height * s.width, s.channels_out * s.channels_in * s.kernel * s.kernel);
+            let x = values(nx, 4);
+            let weight = values(nw, 5);
+            let grad = values(s.batch * s.channels_out * s.out_height() * s.out_width(), 6);
+            // Entry i of the gradient: the loss with the i-th of `n` inputs one-hot.
+            let one_hot = |n: usize, loss: &dyn Fn(&[f32]) -> Vec<f32>| -> Vec<f32> {
+                (0..n)
+                    .map(|i| {
+                        let mut one = vec![0.0; n];
+                        one[i] = 1.0;
+                        loss(&one).iter().zip(&grad).map(|(p, q)| (p * q) as f64).sum::<f64>() as f32
+                    })
+                    .collect()
+            };
+            let expected_dw = one_hot(nw, &|one| naive(&x, one, &s));
+            let expected_dx = one_hot(nx, &|one| naive(one, &weight, &s));
+            close(&weight_grad(&x, &grad, &s), &expected_dw, &format!("weight grad {s:?}"));
+            close(&input_grad(&grad, &weight, &s), &expected_dx, &format!("input grad {s:?}"));
+        }
+    }
+}

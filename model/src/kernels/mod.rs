@@ -1,0 +1,52 @@
+//! The flex CPU kernels, and the one interface the network calls them through.
+//!
+//! Each function below runs this crate's kernel where its tensors are f32 on flex (outside
+//! autodiff, or with the handwritten backward passes under autodiff on flex), and Burn's own
+//! operation everywhere else (other backends, dtypes, layer shapes), so the network's results
+//! agree on every backend within float rounding. Nothing else of these modules is visible to
+//! the network.
+//!
+//! - convolutions as large matrix products, forward (`conv_forward`) and backward
+//!   (`gemm_conv`, through a Burn backend extension in `conv`);
+//! - a dense block's eval-mode forward in one preallocated stack (`dense_block`);
+//! - eval-mode and training-mode batch norm + ReLU in one pass (`norm_relu`, `batch_norm_train`);
+//! - the stem's max pool (`pool`) and the decoder's upsample + concatenation (`upsample`).
+
+use burn::nn::BatchNorm;
+use burn::nn::conv::Conv2d;
+use burn::tensor::Tensor;
+
+mod batch_norm_train;
+mod conv;
+// Matrix products through raw pointers into disjoint parts of one buffer.
+#[allow(unsafe_code)]
+mod conv_forward;
+mod dense_block;
+mod flex;
+#[allow(unsafe_code)]
+mod gemm_conv;
+mod norm_relu;
+mod pool;
+mod upsample;
+
+pub(crate) use conv::conv2d_act;
+pub(crate) use norm_relu::{inference_affine, norm_relu};
+pub(crate) use pool::max_pool2d;
+pub(crate) use upsample::{taps as bilinear_taps, upsample_concat};
+
+/// What the dense-block kernel needs of one dense layer: BN-ReLU-Conv1x1-BN-ReLU-Conv, where the
+/// second batch norm may already be folded into the first convolution (`norm2` is `None`).
+#[derive(Clone, Copy)]
+pub(crate) struct DenseLayerParams<'a> {
+    pub(crate) norm1: &'a BatchNorm,
+    pub(crate) conv1: &'a Conv2d,
+    pub(crate) norm2: Option<&'a BatchNorm>,
+    pub(crate) conv2: &'a Conv2d,
+}
+
+/// A dense block's output (its input with every layer's new channels stacked behind it), when
+/// `x` is f32 on flex outside autodiff and every layer has the shapes the kernel handles;
+/// `None` otherwise, and the network runs its layers through Burn's operations.
+pub(crate) fn dense_block(layers: &[DenseLayerParams], x: &Tensor<4>) -> Option<Tensor<4>> {
+    dense_block::forward(layers, x)
+}

@@ -1,0 +1,28 @@
+//! DenseDepth for DenseTact on Burn: a torchvision-compatible DenseNet encoder with
+//! DenseDepth's skip-connection decoder, its loss, the depth scale, the exported bundle (the
+//! contract with deployment) and PyTorch weight import.
+//!
+//! - `network`: the Burn modules, readable on their own; their layers call
+//! - `kernels`: the flex CPU kernels (matrix-product convolutions, fused dense blocks, batch
+//!   norms, pooling, upsampling), through one small interface; private to this crate;
+//! - `bundle`, `import`, `tensor_file`: files in and out;
+//! - `loss`, `scale`: the training loss and the mm <-> network depth scale;
+//! - `backend`: devices by name.
+
+#![deny(unsafe_code)]
+
+pub mod backend;
+pub mod bundle;
+pub mod import;
+mod kernels;
+pub mod loss;
+mod network;
+pub mod scale;
+pub mod tensor_file;
+
+pub use loss::{DepthLoss, DepthLossConfig};
+pub use network::{
+    Activation, Decoder, DenseBlock, DenseDepth, DenseDepthConfig, DenseLayer, DenseNetConfig, DenseNetEncoder, Skips,
+    Transition, UpBlock, Upsample, fold_batch_norm, interpolation_matrix, upsample_bilinear, upsample_mode_for,
+};
+pub use scale::{DepthScale, PAPER_NET_RANGE, UNIT_NET_RANGE};

@@ -1,0 +1,37 @@
+//! The network: a torchvision-compatible DenseNet encoder and DenseDepth's skip-connection
+//! decoder, as Burn modules. Its layers call the CPU kernels through `crate::kernels` only.
+
+mod config;
+mod decoder;
+mod densedepth;
+mod densenet;
+mod upsample;
+
+pub use config::{DenseDepthConfig, DenseNetConfig};
+pub use decoder::{Decoder, UpBlock};
+pub use densedepth::DenseDepth;
+pub use densenet::{DenseBlock, DenseLayer, DenseNetEncoder, Skips, Transition, fold_batch_norm};
+pub use upsample::{Upsample, interpolation_matrix, upsample_bilinear, upsample_mode_for};
+
+/// What follows a convolution.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Activation {
+    Identity,
+    Relu,
+    /// LeakyReLU with this negative slope (f64 as Burn's `leaky_relu` takes it).
+    Leaky(f64),
+}
+
+/// `activation(conv.forward(x))`.
+pub(crate) fn conv2d_act(
+    conv: &burn::nn::conv::Conv2d,
+    x: burn::tensor::Tensor<4>,
+    activation: Activation,
+) -> burn::tensor::Tensor<4> {
+    crate::kernels::conv2d_act(conv, x, activation)
+}
+
+/// `conv.forward(x)`.
+pub(crate) fn conv2d(conv: &burn::nn::conv::Conv2d, x: burn::tensor::Tensor<4>) -> burn::tensor::Tensor<4> {
+    conv2d_act(conv, x, Activation::Identity)
+}

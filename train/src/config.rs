@@ -1,0 +1,198 @@
+//! What defines a training run: its settings with the CLI's defaults, and their checks.
+
+use std::path::PathBuf;
+
+use model::DepthScale;
+use serde::{Deserialize, Serialize};
+
+/// What a bad sample does to a run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+pub enum OnBadData {
+    /// Stop with the file's name and the problem.
+    Stop,
+    /// Leave the sample out, count it and report it.
+    Skip,
+}
+
+/// How the learning rate changes over a run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Schedule {
+    /// The given rate throughout.
+    #[default]
+    Constant,
+    /// Half a cosine from the given rate down to 1 % of it at the last step.
+    Cosine,
+}
+
+/// Everything that defines a run; a resume must match it. [`FitConfig::new`] gives the CLI's
+/// defaults; [`FitConfig::validate`] says which setting is out of range.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FitConfig {
+    /// The dataset folder.
+    pub data: PathBuf,
+    /// Network input, height and width (multiples of 32). Default: none (the caller's choice).
+    pub input_hw: [usize; 2],
+    /// Default 10.
+    pub epochs: usize,
+    /// Default 4.
+    pub batch: usize,
+    /// Adam's learning rate. Default 1e-4.
+    pub lr: f64,
+    /// Weights, data order, augmentation and the validation hold-out follow from it. Default 0.
+    pub seed: u64,
+    /// Checkpoint every this many steps (and at every epoch's end). Default 50.
+    pub checkpoint_every: u64,
+    /// Default: stop.
+    pub on_bad_data: OnBadData,
+    /// Consecutive non-finite steps after which the run stops. Default 5.
+    pub max_bad_steps: u64,
+    /// Train the decoder only. Default false.
+    pub freeze_encoder: bool,
+    /// Train on this fraction of the training split (a seeded subset, at least one sample):
+    /// fine-tuning from a little of a new unit's data. Default 1.
+    #[serde(default = "one")]
+    pub train_fraction: f64,
+    /// Network units of zero and maximum depth: the paper's 10..1000 (the default), or 0.01..1,
+    /// which a network trained from scratch on a short budget reaches in far fewer steps.
+    #[serde(default = "paper_range")]
+    pub net_range: [f32; 2],
+    /// Learning-rate schedule after the warm-up. Default constant.
+    #[serde(default)]
+    pub schedule: Schedule,
+    /// Steps over which the learning rate ramps up linearly from zero. Default 0.
+    #[serde(default)]
+    pub warmup_steps: u64,
+    /// Fraction of the (used) training split held out, seeded, to validate each epoch and pick
+    /// the best epoch; the test split is never seen during training. Default 0.1. With 0 the
+    /// test split is measured each epoch and the last epoch is kept.
+    #[serde(default)]
+    pub val_fraction: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+fn paper_range() -> [f32; 2] {
+    model::PAPER_NET_RANGE
+}
+
+/// A setting out of range: which one (with its command-line flag), its value and why.
+#[derive(Debug, thiserror::Error)]
+#[error("{flag} must be {rule}, got {value}")]
+pub struct SettingError {
+    pub flag: &'static str,
+    pub rule: &'static str,
+    pub value: String,
+}
+
+impl FitConfig {
+    /// A run on `data` at `input_hw` with the CLI's defaults.
+    pub fn new(data: PathBuf, input_hw: [usize; 2]) -> Self {
+        FitConfig {
+            data,
+            input_hw,
+            epochs: 10,
+            batch: 4,
+            lr: 1e-4,
+            seed: 0,
+            checkpoint_every: 50,
+            on_bad_data: OnBadData::Stop,
+            max_bad_steps: 5,
+            freeze_encoder: false,
+            train_fraction: 1.0,
+            net_range: paper_range(),
+            schedule: Schedule::Constant,
+            warmup_steps: 0,
+            val_fraction: 0.1,
+        }
+    }
+
+    /// Checks every setting; the error names the first one out of range.
+    pub fn validate(&self) -> Result<(), SettingError> {
+        let check =
+            |ok: bool, flag, rule, value: String| if ok { Ok(()) } else { Err(SettingError { flag, rule, value }) };
+        let [h, w] = self.input_hw;
+        check(
+            h > 0 && w > 0 && h % 32 == 0 && w % 32 == 0,
+            "--input",
+            "HxW with both sides positive multiples of 32",
+            format!("{h}x{w}"),
+        )?;
+        check(self.epochs > 0, "--epochs", "at least 1", self.epochs.to_string())?;
+        check(self.batch > 0, "--batch", "at least 1", self.batch.to_string())?;
+        check(self.lr.is_finite() && self.lr > 0.0, "--lr", "a positive finite number", self.lr.to_string())?;
+        check(self.checkpoint_every > 0, "--checkpoint-every", "at least 1", self.checkpoint_every.to_string())?;
+        check(self.max_bad_steps > 0, "--max-bad-steps", "at least 1", self.max_bad_steps.to_string())?;
+        check(
+            self.train_fraction > 0.0 && self.train_fraction <= 1.0,
+            "--train-fraction",
+            "in (0, 1]",
+            self.train_fraction.to_string(),
+        )?;
+        check((0.0..1.0).contains(&self.val_fraction), "--val-fraction", "in [0, 1)", self.val_fraction.to_string())?;
+        let [lo, hi] = self.net_range;
+        check(
+            lo.is_finite() && hi.is_finite() && lo < hi,
+            "--depth-units",
+            "an increasing range",
+            format!("{lo}..{hi}"),
+        )
+    }
+
+    /// The depth scale of this run for a sensor whose depth is clipped at `max_depth_mm`.
+    pub fn scale(&self, max_depth_mm: f64) -> DepthScale {
+        DepthScale { max_depth_mm: max_depth_mm as f32, net_min: self.net_range[0], net_max: self.net_range[1] }
+    }
+
+    /// The learning rate of (1-based) step `step` of `total` steps.
+    pub fn learning_rate(&self, step: u64, total: u64) -> f64 {
+        if step <= self.warmup_steps {
+            return self.lr * step as f64 / (self.warmup_steps + 1) as f64;
+        }
+        match self.schedule {
+            Schedule::Constant => self.lr,
+            Schedule::Cosine => {
+                let span = total.saturating_sub(self.warmup_steps).max(1) as f64;
+                let t = ((step - self.warmup_steps) as f64 / span).min(1.0);
+                let floor = 0.01;
+                self.lr * (floor + (1.0 - floor) * 0.5 * (1.0 + (std::f64::consts::PI * t).cos()))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_clis_and_bad_settings_are_named() {
+        let c = FitConfig::new("d".into(), [64, 64]);
+        c.validate().unwrap();
+        assert_eq!((c.val_fraction, c.batch, c.epochs), (0.1, 4, 10));
+        let cases: [(FitConfig, &str); 7] = [
+            (FitConfig { batch: 0, ..c.clone() }, "--batch"),
+            (FitConfig { epochs: 0, ..c.clone() }, "--epochs"),
+            (FitConfig { lr: f64::NAN, ..c.clone() }, "--lr"),
+            (FitConfig { lr: f64::INFINITY, ..c.clone() }, "--lr"),
+            (FitConfig { input_hw: [64, 50], ..c.clone() }, "--input"),
+            (FitConfig { val_fraction: 1.0, ..c.clone() }, "--val-fraction"),
+            (FitConfig { train_fraction: 0.0, ..c.clone() }, "--train-fraction"),
+        ];
+        for (bad, flag) in cases {
+            let e = bad.validate().unwrap_err().to_string();
+            assert!(e.starts_with(flag), "{e}");
+        }
+    }
+
+    #[test]
+    fn the_schedule_warms_up_and_decays_to_one_percent() {
+        let c =
+            FitConfig { lr: 1.0, warmup_steps: 9, schedule: Schedule::Cosine, ..FitConfig::new("d".into(), [32, 32]) };
+        assert!((c.learning_rate(5, 100) - 0.5).abs() < 1e-12);
+        assert!((c.learning_rate(10, 100) - 1.0).abs() < 0.01);
+        assert!((c.learning_rate(100, 100) - 0.01).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,197 @@
+//! Training data: a generated dataset folder read through Burn's `Dataset` and `Batcher`.
+//!
+//! Each item is the unit's RGB crop resized to the network's input, and the depth map resized to
+//! half of it in network units. Augmentations keep the colour-to-normal geometry: brightness and
+//! contrast jitter and noise only, never channel swaps, flips or rotations (the LEDs would not
+//! turn with them).
+
+use std::path::{Path, PathBuf};
+
+use burn::data::dataloader::batcher::Batcher;
+use burn::data::dataset::Dataset;
+use burn::tensor::{Device, Tensor, TensorData};
+use formats::SplitMix64;
+use formats::dataset::{Manifest, SampleRecord, Split};
+use model::DepthScale;
+use sensor::{DepthMap, Sensor};
+
+/// A bad sample: the file and what is wrong with it.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {message}")]
+pub struct DataError {
+    pub path: PathBuf,
+    pub message: String,
+}
+
+fn bad(path: &Path, message: impl std::fmt::Display) -> DataError {
+    DataError { path: path.to_path_buf(), message: message.to_string() }
+}
+
+/// One training pair, ready to batch.
+#[derive(Clone, Debug)]
+pub struct DepthItem {
+    /// [3, H, W], RGB in [0, 1].
+    pub image: Vec<f32>,
+    /// [1, H/2, W/2], network units.
+    pub depth: Vec<f32>,
+}
+
+/// Photometric augmentation for one item, drawn from its own stream.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Jitter {
+    pub gain: f32,
+    pub offset: f32,
+    pub noise_sd: f32,
+    pub seed: u64,
+}
+
+impl Jitter {
+    pub fn draw(seed: u64, epoch: u64, index: u64) -> Self {
+        let mut rng = SplitMix64::for_item(seed ^ epoch.wrapping_mul(0x9e37_79b9), index);
+        Jitter {
+            gain: rng.range(0.9, 1.1) as f32,
+            offset: rng.range(-0.03, 0.03) as f32,
+            noise_sd: rng.range(0.0, 0.01) as f32,
+            seed: rng.next_u64(),
+        }
+    }
+}
+
+/// The samples of one split of a dataset folder that has images.
+pub struct DepthDataset {
+    dir: PathBuf,
+    pub sensor: Sensor,
+    pub records: Vec<SampleRecord>,
+    pub input_hw: [usize; 2],
+    pub scale: DepthScale,
+    /// Useful pixels at the output resolution ([H/2 * W/2], 1 or 0).
+    pub mask: Vec<f32>,
+    reference: Option<PathBuf>,
+}
+
+impl DepthDataset {
+    pub fn open(dir: &Path, split: Option<Split>, input_hw: [usize; 2]) -> anyhow::Result<Self> {
+        let manifest = Manifest::load(dir)?;
+        let records: Vec<SampleRecord> =
+            manifest.samples.into_iter().filter(|s| split.is_none_or(|want| s.split == want)).collect();
+        if let Some(s) = records.iter().find(|s| s.image.is_none()) {
+            anyhow::bail!(
+                "{}: sample {} has no camera image; generate the dataset with --unit SEED",
+                dir.join("manifest.json").display(),
+                s.id
+            );
+        }
+        let sensor = manifest.sensor;
+        let mask = output_mask(&sensor, input_hw);
+        let reference = Some(dir.join("unit/reference.png")).filter(|p| p.is_file());
+        Ok(DepthDataset {
+            dir: dir.to_path_buf(),
+            scale: DepthScale::paper(sensor.max_depth_mm as f32),
+            sensor,
+            records,
+            input_hw,
+            mask,
+            reference,
+        })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The unit's no-contact image, if the dataset has one.
+    pub fn reference_png(&self) -> Option<Vec<u8>> {
+        self.reference.as_ref().and_then(|p| std::fs::read(p).ok())
+    }
+
+    /// Loads item `i`, with `jitter` applied to the image when given.
+    pub fn load(&self, i: usize, jitter: Option<Jitter>) -> Result<DepthItem, DataError> {
+        let record = &self.records[i];
+        let crop = self.sensor.crop_size_px;
+        let image_path = self.dir.join(record.image.as_ref().expect("checked at open"));
+        let img = image::open(&image_path).map_err(|e| bad(&image_path, format!("not a readable image: {e}")))?;
+        if img.width() != crop || img.height() != crop {
+            return Err(bad(
+                &image_path,
+                format!("image is {}x{}, the sensor's crop is {crop}x{crop}", img.width(), img.height()),
+            ));
+        }
+        let depth_path = self.dir.join(&record.depth);
+        let depth = DepthMap::load_png_um(&depth_path).map_err(|e| bad(&depth_path, e))?;
+        if depth.size_px != crop {
+            return Err(bad(&depth_path, format!("depth map is {0}x{0}, the crop is {crop}x{crop}", depth.size_px)));
+        }
+        let limit = self.sensor.max_depth_mm as f32 + 1e-3;
+        if let Some(d) = depth.depth_mm.iter().find(|&&d| !(0.0..=limit).contains(&d)) {
+            return Err(bad(&depth_path, format!("depth {d} mm is outside 0..{} mm", self.sensor.max_depth_mm)));
+        }
+        let [h, w] = self.input_hw;
+        let mut image = model::bundle::encode_input(&img.to_rgb8(), self.input_hw);
+        if let Some(j) = jitter {
+            let mut rng = SplitMix64::new(j.seed);
+            for v in &mut image {
+                let noise = if j.noise_sd > 0.0 { rng.normal() as f32 * j.noise_sd } else { 0.0 };
+                *v = (*v * j.gain + j.offset + noise).clamp(0.0, 1.0);
+            }
+        }
+        let (oh, ow) = (h / 2, w / 2);
+        let half = resize_plane(&depth.depth_mm, crop as usize, [oh, ow]);
+        let depth = half.iter().map(|&d| self.scale.to_net(d)).collect();
+        Ok(DepthItem { image, depth })
+    }
+}
+
+impl Dataset<DepthItem, DataError> for DepthDataset {
+    /// Burn's view of the dataset: items without augmentation.
+    fn get(&self, index: usize) -> Result<DepthItem, DataError> {
+        self.load(index, None)
+    }
+
+    fn len(&self) -> usize {
+        self.records.len()
+    }
+}
+
+/// A square plane resized to `[h, w]` (triangle filter, values kept as they are).
+fn resize_plane(values: &[f32], side: usize, hw: [usize; 2]) -> Vec<f32> {
+    sensor::resample::resize_plane(values, [side, side], hw)
+}
+
+/// Output pixels (half the input's resolution) that lie wholly on useful crop pixels.
+fn output_mask(sensor: &Sensor, [h, w]: [usize; 2]) -> Vec<f32> {
+    sensor::resample::covered_mask(&sensor.valid_mask(), sensor.crop_size_px as usize, [h / 2, w / 2])
+        .into_iter()
+        .map(|m| if m { 1.0 } else { 0.0 })
+        .collect()
+}
+
+/// A batch on a device.
+#[derive(Clone, Debug)]
+pub struct DepthBatch {
+    pub images: Tensor<4>,
+    pub depths: Tensor<4>,
+    pub masks: Tensor<4>,
+}
+
+/// Stacks items into tensors.
+#[derive(Clone, Debug)]
+pub struct DepthBatcher {
+    pub input_hw: [usize; 2],
+    pub mask: Vec<f32>,
+}
+
+impl Batcher<DepthItem, DepthBatch> for DepthBatcher {
+    fn batch(&self, items: Vec<DepthItem>, device: &Device) -> DepthBatch {
+        let n = items.len();
+        let [h, w] = self.input_hw;
+        let (oh, ow) = (h / 2, w / 2);
+        let images: Vec<f32> = items.iter().flat_map(|i| i.image.iter().copied()).collect();
+        let depths: Vec<f32> = items.iter().flat_map(|i| i.depth.iter().copied()).collect();
+        let masks: Vec<f32> = (0..n).flat_map(|_| self.mask.iter().copied()).collect();
+        DepthBatch {
+            images: Tensor::from_data(TensorData::new(images, [n, 3, h, w]), device),
+            depths: Tensor::from_data(TensorData::new(depths, [n, 1, oh, ow]), device),
+            masks: Tensor::from_data(TensorData::new(masks, [n, 1, oh, ow]), device),
+        }
+    }
+}

@@ -1,0 +1,377 @@
+//! The training loop: masked DenseDepth loss, Adam, per-epoch validation in millimetres,
+//! checkpoints every K steps and at each epoch's end, resumable after a kill at any moment.
+//!
+//! A run is four parts: the samples it trains and validates on ([`select`]), where it starts
+//! (fresh, given weights, or its last checkpoint: [`Run::start`]), the steps of an epoch
+//! ([`Run::steps`]) and the epoch's end (validation, the best epoch, checkpoint, metrics:
+//! [`Run::end_epoch`]).
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use burn::data::dataloader::batcher::Batcher;
+use burn::module::Module;
+use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::tensor::{Device, Tensor};
+use formats::dataset::Split;
+use formats::training::EpochMetrics;
+use formats::{Progress, SplitMix64};
+use model::{DenseDepth, DenseDepthConfig, DepthLossConfig};
+
+use crate::checkpoint::{self, RunState};
+use crate::config::{FitConfig, OnBadData};
+use crate::data::{DepthBatcher, DepthDataset};
+use crate::loader::BatchLoader;
+use crate::parallel::DataParallel;
+
+/// The optimiser every run uses (Adam, Burn's defaults).
+pub fn optimizer() -> ModuleOptimizer {
+    AdamConfig::new().init()
+}
+
+/// Where a run starts when there is no checkpoint: fresh weights or given ones.
+pub struct Start {
+    pub model_config: DenseDepthConfig,
+    pub weights: Option<DenseDepth>,
+}
+
+/// A finished run.
+pub struct Fitted {
+    pub net: DenseDepth,
+    pub state: RunState,
+}
+
+/// How a run is carried out rather than what it computes: nothing here changes the result, so
+/// nothing here is part of the run's settings, and a resume may change any of it.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// The devices that share each batch; the first holds the model (see [`crate::parallel`]).
+    pub devices: Vec<Device>,
+    /// Continue from the run folder's last checkpoint.
+    pub resume: bool,
+    /// Threads that decode batches ahead of the step (0: decode in the step's thread).
+    pub loader_workers: usize,
+    /// Test hook: the loss of this global step is made non-finite.
+    pub inject_nan_step: Option<u64>,
+}
+
+impl RunOptions {
+    /// One device, no resume, two loader threads.
+    pub fn on(device: &Device) -> Self {
+        RunOptions { devices: vec![device.clone()], resume: false, loader_workers: 2, inject_nan_step: None }
+    }
+}
+
+/// Trains (or resumes) the run in `run_dir` on one device.
+pub fn fit(run_dir: &Path, config: &FitConfig, start: Start, device: &Device, resume: bool) -> Result<Fitted> {
+    fit_with(run_dir, config, start, &RunOptions { resume, ..RunOptions::on(device) })
+}
+
+/// Trains (or resumes) the run in `run_dir`, each batch shared out over `devices`. The devices
+/// are not part of the run's settings: a run may resume on others.
+pub fn fit_on(run_dir: &Path, config: &FitConfig, start: Start, devices: &[Device], resume: bool) -> Result<Fitted> {
+    let first = devices.first().context("no training device given")?;
+    fit_with(run_dir, config, start, &RunOptions { devices: devices.to_vec(), resume, ..RunOptions::on(first) })
+}
+
+/// Trains (or resumes) the run in `run_dir` as `options` say.
+pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunOptions) -> Result<Fitted> {
+    config.validate()?;
+    let Some(device) = options.devices.first() else { bail!("no training device given") };
+    std::fs::create_dir_all(run_dir).with_context(|| format!("{}: cannot create", run_dir.display()))?;
+    let (train, val) = select(config)?;
+    let mut run = Run::start(run_dir, config, start, options, train, val)?;
+    while run.state.epoch < config.epochs {
+        let epoch_start = Instant::now();
+        run.steps()?;
+        run.end_epoch(epoch_start)?;
+    }
+    let net = match checkpoint::best(run_dir) {
+        Some(best) => checkpoint::restore_model(&best, &run.state.model, device)?,
+        None => run.net.valid(),
+    };
+    Ok(Fitted { net, state: run.state })
+}
+
+/// The samples a run trains on and those it validates on: the training split (or the seeded
+/// fraction of it that `train_fraction` asks for), less a seeded hold-out of `val_fraction` of
+/// it for validation; without a hold-out, the test split validates.
+pub fn select(config: &FitConfig) -> Result<(DepthDataset, DepthDataset)> {
+    let mut train = DepthDataset::open(&config.data, Some(Split::Train), config.input_hw)?;
+    if config.train_fraction < 1.0 {
+        let keep = ((train.records.len() as f64 * config.train_fraction).ceil() as usize).max(1);
+        let chosen = permutation(train.records.len(), config.seed ^ 0x5b5e7, 0);
+        let mut ids: Vec<usize> = chosen.into_iter().take(keep).collect();
+        ids.sort_unstable();
+        train.records = ids.into_iter().map(|i| train.records[i].clone()).collect();
+    }
+    let mut val = DepthDataset::open(&config.data, Some(Split::Test), config.input_hw)?;
+    if config.val_fraction > 0.0 {
+        // Hold out a seeded part of the training samples; the test split stays unseen.
+        let n = train.records.len();
+        if n < 2 {
+            bail!("{}: a validation hold-out needs at least two training samples", config.data.display());
+        }
+        let held = ((n as f64 * config.val_fraction).round() as usize).clamp(1, n - 1);
+        let order = permutation(n, config.seed ^ 0x7a1d, 0);
+        let mut is_val = vec![false; n];
+        order.iter().take(held).for_each(|&i| is_val[i] = true);
+        let records = std::mem::take(&mut train.records);
+        let (v, t): (Vec<_>, Vec<_>) = records.into_iter().enumerate().partition(|(i, _)| is_val[*i]);
+        val.records = v.into_iter().map(|(_, r)| r).collect();
+        train.records = t.into_iter().map(|(_, r)| r).collect();
+    }
+    let scale = config.scale(train.sensor.max_depth_mm);
+    train.scale = scale;
+    val.scale = scale;
+    Ok((train, val))
+}
+
+/// A run in progress.
+struct Run<'a> {
+    dir: &'a Path,
+    config: &'a FitConfig,
+    options: &'a RunOptions,
+    train: Arc<DepthDataset>,
+    val: DepthDataset,
+    batcher: DepthBatcher,
+    parallel: DataParallel,
+    net: DenseDepth,
+    optim: ModuleOptimizer,
+    state: RunState,
+    /// Consecutive non-finite steps.
+    bad_run: u64,
+}
+
+impl<'a> Run<'a> {
+    /// From the run folder's last checkpoint when resuming, else from `start`'s weights (or
+    /// fresh ones, seeded).
+    fn start(
+        dir: &'a Path,
+        config: &'a FitConfig,
+        start: Start,
+        options: &'a RunOptions,
+        train: DepthDataset,
+        val: DepthDataset,
+    ) -> Result<Self> {
+        let device = &options.devices[0];
+        let train_device = device.clone().autodiff();
+        let (mut net, optim, state) = match checkpoint::latest(dir) {
+            Some(ckpt) if options.resume => {
+                let state = checkpoint::read_state(&ckpt)?;
+                if state.config != *config {
+                    bail!(
+                        "{}: the checkpoint was made with other settings; resume with the same arguments, \
+                         or use another --out",
+                        ckpt.join("state.json").display()
+                    );
+                }
+                let (net, optim) = checkpoint::restore(&ckpt, &state, &train_device)?;
+                eprintln!("resuming at epoch {} batch {} (step {})", state.epoch + 1, state.batch, state.global_step);
+                (net, optim, state)
+            }
+            Some(ckpt) => bail!(
+                "{}: this run folder already has a checkpoint; pass --resume to continue it, or use another --out",
+                ckpt.display()
+            ),
+            None => {
+                // Fresh weights come from the device's generator: seeded, so a run is reproducible.
+                train_device.seed(config.seed);
+                let net = match start.weights {
+                    Some(w) => w.fork(&train_device).train(),
+                    None => start.model_config.init(&train_device),
+                };
+                (net, optimizer(), RunState::new(config.clone(), start.model_config))
+            }
+        };
+        if config.freeze_encoder {
+            net.encoder = net.encoder.no_grad();
+        }
+        let loss = DepthLossConfig::new().with_dynamic_range(train.scale.range() as f64);
+        let batcher = DepthBatcher { input_hw: config.input_hw, mask: train.mask.clone() };
+        let parallel = DataParallel::new(&options.devices, batcher.clone(), loss)?;
+        Ok(Run { dir, config, options, train: Arc::new(train), val, batcher, parallel, net, optim, state, bad_run: 0 })
+    }
+
+    fn batches(&self) -> usize {
+        self.train.records.len().div_ceil(self.config.batch)
+    }
+
+    /// The rest of the current epoch's steps, each on a batch decoded ahead.
+    fn steps(&mut self) -> Result<()> {
+        let (config, n_batches) = (self.config, self.batches());
+        let epoch = self.state.epoch as u64;
+        let order = permutation(self.train.records.len(), config.seed, epoch);
+        let mut loader = BatchLoader::new(
+            self.train.clone(),
+            order,
+            config.batch,
+            [config.seed, epoch],
+            self.state.batch,
+            self.options.loader_workers,
+            2,
+        );
+        let progress = Progress::new(&format!("epoch {}/{}", epoch + 1, config.epochs), n_batches as u64);
+        progress.inc(self.state.batch as u64);
+        while let Some(decoded) = loader.next_batch() {
+            let mut items = Vec::with_capacity(decoded.len());
+            for (_, item) in decoded {
+                match item {
+                    Ok(item) => items.push(item),
+                    Err(e) if config.on_bad_data == OnBadData::Skip => {
+                        let name = e.to_string();
+                        if !self.state.bad_samples.contains(&name) {
+                            eprintln!("skipping bad sample: {name}");
+                            self.state.bad_samples.push(name);
+                        }
+                    }
+                    Err(e) => {
+                        return Err(e)
+                            .context("bad training sample (use --on-bad-data skip to leave such samples out)");
+                    }
+                }
+            }
+            self.state.batch += 1;
+            self.state.global_step += 1;
+            if !items.is_empty() {
+                self.step(items)?;
+            }
+            progress.inc(1);
+            let mean = self.state.epoch_loss_sum / self.state.epoch_loss_count.max(1) as f64;
+            progress.set_message(&format!("loss {mean:.4}"));
+            let s = &self.state;
+            if s.batch < n_batches && s.global_step % config.checkpoint_every == 0 && self.bad_run == 0 {
+                checkpoint::save(self.dir, &self.net, &self.optim, s)?;
+            }
+        }
+        progress.finish();
+        Ok(())
+    }
+
+    /// One optimiser step on `items`, or a skipped one if the loss is not finite.
+    fn step(&mut self, items: Vec<crate::data::DepthItem>) -> Result<()> {
+        let step = self.parallel.step(&self.net, items)?;
+        let mut value = step.loss;
+        if self.options.inject_nan_step == Some(self.state.global_step) {
+            value = f64::NAN;
+        }
+        if value.is_finite() {
+            let total = (self.batches() * self.config.epochs) as u64;
+            let lr = self.config.learning_rate(self.state.global_step, total);
+            self.net = self.optim.step(lr, self.net.clone(), step.grads);
+            self.state.epoch_loss_sum += value;
+            self.state.epoch_loss_count += 1;
+            self.bad_run = 0;
+            return Ok(());
+        }
+        self.state.skipped_steps += 1;
+        self.bad_run += 1;
+        eprintln!("step {}: non-finite loss ({value}); step skipped", self.state.global_step);
+        if self.bad_run >= self.config.max_bad_steps {
+            bail!(
+                "{} consecutive non-finite steps at step {}: stopping; the last good checkpoint is in {} (try a lower --lr)",
+                self.bad_run,
+                self.state.global_step,
+                checkpoint::dir(self.dir).display()
+            );
+        }
+        Ok(())
+    }
+
+    /// Validation, the epoch's metrics, the best epoch's model, the checkpoint and the metrics
+    /// files.
+    fn end_epoch(&mut self, started: Instant) -> Result<()> {
+        let device = &self.options.devices[0];
+        let (val_l1_mm, val_loss) = validate(&self.net.valid(), &self.val, &self.batcher, self.config.batch, device)?;
+        let state = &mut self.state;
+        let metrics = EpochMetrics {
+            epoch: state.epoch + 1,
+            train_loss: state.epoch_loss_sum / state.epoch_loss_count.max(1) as f64,
+            val_l1_mm,
+            val_loss,
+            skipped_steps: state.skipped_steps,
+            bad_samples: state.bad_samples.len(),
+            seconds: started.elapsed().as_secs_f64(),
+        };
+        eprintln!(
+            "epoch {}: train loss {:.4}, validation L1 {:.4} mm (loss {:.4}), {:.0} s",
+            metrics.epoch, metrics.train_loss, metrics.val_l1_mm, metrics.val_loss, metrics.seconds
+        );
+        let improved = self.config.val_fraction > 0.0
+            && state.best().is_none_or(|b| metrics.val_l1_mm < b.val_l1_mm)
+            && metrics.val_l1_mm.is_finite();
+        state.history.push(metrics);
+        state.epoch += 1;
+        state.batch = 0;
+        state.epoch_loss_sum = 0.0;
+        state.epoch_loss_count = 0;
+        if improved {
+            // Written before the checkpoint: a kill in between re-runs the epoch and rewrites it.
+            checkpoint::save_best(self.dir, &self.net, state)?;
+        }
+        checkpoint::save(self.dir, &self.net, &self.optim, state)?;
+        write_metrics(self.dir, &state.history)
+    }
+}
+
+/// Mean per-image L1 (mm, useful pixels) and mean loss over a split, in eval mode.
+pub fn validate(
+    net: &DenseDepth,
+    data: &DepthDataset,
+    batcher: &DepthBatcher,
+    batch: usize,
+    device: &Device,
+) -> Result<(f64, f64)> {
+    if data.records.is_empty() {
+        return Ok((f64::NAN, f64::NAN));
+    }
+    let loss_config = DepthLossConfig::new().with_dynamic_range(data.scale.range() as f64);
+    let useful: f32 = batcher.mask.iter().sum::<f32>().max(1.0);
+    let (mut l1_sum, mut loss_sum, mut images, mut batches) = (0f64, 0f64, 0usize, 0usize);
+    let ids: Vec<usize> = (0..data.records.len()).collect();
+    for chunk in ids.chunks(batch) {
+        let items: Vec<_> = chunk.iter().filter_map(|&i| data.load(i, None).ok()).collect();
+        if items.is_empty() {
+            continue;
+        }
+        let n = items.len();
+        let b = batcher.batch(items, device);
+        let pred = net.forward(b.images);
+        loss_sum += loss_config
+            .forward_masked(pred.clone(), b.depths.clone(), Some(b.masks.clone()))
+            .total
+            .into_scalar::<f32>() as f64;
+        let err_mm: Tensor<4> = (data.scale.tensor_to_mm(pred) - data.scale.tensor_to_mm(b.depths)).abs() * b.masks;
+        let per_image: Vec<f32> = err_mm.sum_dim(3).sum_dim(2).flatten::<1>(0, 3).into_data().try_to_vec::<f32>()?;
+        l1_sum += per_image.iter().map(|&s| (s / useful) as f64).sum::<f64>();
+        images += n;
+        batches += 1;
+    }
+    Ok((l1_sum / images.max(1) as f64, loss_sum / batches.max(1) as f64))
+}
+
+/// The order of an epoch's samples, from the run's seed and the epoch alone (so a resumed run
+/// sees the same order).
+pub fn permutation(n: usize, seed: u64, epoch: u64) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..n).collect();
+    let mut rng = SplitMix64::for_item(seed ^ 0x0e0c, epoch);
+    for i in (1..n).rev() {
+        order.swap(i, rng.below(i + 1));
+    }
+    order
+}
+
+fn write_metrics(run: &Path, history: &[EpochMetrics]) -> Result<()> {
+    formats::write_json(&run.join("metrics.json"), &history)?;
+    let mut csv = String::from("epoch,train_loss,val_l1_mm,val_loss,skipped_steps,bad_samples,seconds\n");
+    for m in history {
+        csv.push_str(&format!(
+            "{},{},{},{},{},{},{:.1}\n",
+            m.epoch, m.train_loss, m.val_l1_mm, m.val_loss, m.skipped_steps, m.bad_samples, m.seconds
+        ));
+    }
+    formats::fs::write_atomic(&run.join("metrics.csv"), csv.as_bytes())?;
+    Ok(())
+}

@@ -1,0 +1,17 @@
+//! Training, resuming and fine-tuning DenseDepth on dataset folders, and export of the bundle
+//! that `infer` loads.
+
+#![deny(unsafe_code)]
+
+pub mod checkpoint;
+mod config;
+pub mod data;
+pub mod export;
+mod fit;
+mod loader;
+pub mod parallel;
+
+pub use config::{FitConfig, OnBadData, Schedule, SettingError};
+pub use fit::{Fitted, RunOptions, Start, fit, fit_on, fit_with, optimizer, permutation, select, validate};
+pub use formats::training::EpochMetrics;
+pub use loader::{BatchLoader, DecodedBatch};

@@ -1,0 +1,284 @@
+//! `train`: fit, resume, fine-tune and export DenseTact depth models.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use train::data::DepthDataset;
+use train::{FitConfig, OnBadData, RunOptions, Schedule, Start, fit_with};
+
+#[derive(Parser)]
+#[command(name = "train", version, about = "Train DenseDepth for DenseTact sensors")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Train a model on a generated dataset (with images); resumable with --resume.
+    Fit(FitArgs),
+    /// Fine-tune a bundle's model on a new unit's (small) dataset.
+    Finetune(FinetuneArgs),
+    /// Write the bundle of a run's latest checkpoint.
+    Export {
+        #[arg(long)]
+        run: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Make a bundle from a PyTorch DenseDepth state_dict.
+    Import {
+        #[arg(long)]
+        pth: PathBuf,
+        #[arg(long)]
+        sensor: PathBuf,
+        #[arg(long, default_value = "480x640", value_parser = parse_hw)]
+        input: [usize; 2],
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+#[derive(clap::Args)]
+struct Common {
+    /// Dataset folder (from `dataset generate --unit SEED`).
+    #[arg(long)]
+    data: PathBuf,
+    /// Run folder: checkpoints, metrics.csv, metrics.json.
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = 10)]
+    epochs: usize,
+    #[arg(long, default_value_t = 4)]
+    batch: usize,
+    #[arg(long, default_value_t = 1e-4)]
+    lr: f64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// flex (the CPU), wgpu (the default adapter), wgpu:N (the N-th discrete GPU), cuda or
+    /// cuda:N (builds with --features model/cuda).
+    #[arg(long, default_value = "flex")]
+    device: String,
+    /// Several devices that share every batch (data parallel), comma-separated, e.g.
+    /// cuda:0,cuda:1 or wgpu:0,wgpu:1; the first holds the model. Instead of --device.
+    #[arg(long, conflicts_with = "device")]
+    devices: Option<String>,
+    /// Checkpoint every this many steps (and at every epoch's end).
+    #[arg(long, default_value_t = 50)]
+    checkpoint_every: u64,
+    /// Continue the run in --out from its last checkpoint.
+    #[arg(long)]
+    resume: bool,
+    /// What a missing or corrupt sample does: stop (default) or skip (counted, reported).
+    #[arg(long, value_enum, default_value_t = OnBadData::Stop)]
+    on_bad_data: OnBadData,
+    /// Consecutive non-finite steps (each skipped) after which the run stops.
+    #[arg(long, default_value_t = 5)]
+    max_bad_steps: u64,
+    /// Train on this fraction of the training split (a seeded subset).
+    #[arg(long, default_value_t = 1.0)]
+    train_fraction: f64,
+    /// Learning-rate schedule after the warm-up: constant or cosine (down to 1 % at the end).
+    #[arg(long, value_enum, default_value_t = Schedule::Constant)]
+    schedule: Schedule,
+    /// Steps over which the learning rate ramps up from zero.
+    #[arg(long, default_value_t = 0)]
+    warmup_steps: u64,
+    /// Fraction of the training samples held out to validate each epoch and keep the best
+    /// epoch's model (0: validate on the test split, keep the last epoch).
+    #[arg(long, default_value_t = 0.1)]
+    val_fraction: f64,
+    /// Threads that decode batches ahead of the training step (0: none).
+    #[arg(long, default_value_t = 2)]
+    loader_workers: usize,
+    /// Test hook: the loss of this step is made non-finite.
+    #[arg(long, hide = true)]
+    inject_nan_step: Option<u64>,
+}
+
+#[derive(clap::Args)]
+struct FitArgs {
+    #[command(flatten)]
+    common: Common,
+    /// tiny, compact, densenet121, densenet161, densenet169, densenet201.
+    #[arg(long, default_value = "compact")]
+    preset: String,
+    /// Network input, HxW (multiples of 32); the square crop is resized to it.
+    #[arg(long, default_value = "256x256", value_parser = parse_hw)]
+    input: [usize; 2],
+    /// Depth in network units: `paper` (0..max depth -> 10..1000, as the paper trained) or
+    /// `unit` (0.01..1, reached in far fewer steps when training from scratch).
+    #[arg(long, value_enum, default_value_t = DepthUnits::Paper)]
+    depth_units: DepthUnits,
+    /// A torchvision DenseNet checkpoint (ImageNet) to start the encoder from.
+    #[arg(long)]
+    encoder_weights: Option<PathBuf>,
+    /// Bundle folder to write at the end.
+    #[arg(long)]
+    bundle: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct FinetuneArgs {
+    #[command(flatten)]
+    common: Common,
+    /// The bundle to start from.
+    #[arg(long)]
+    from: PathBuf,
+    /// Train the decoder only.
+    #[arg(long)]
+    freeze_encoder: bool,
+    /// Bundle folder to write at the end.
+    #[arg(long)]
+    bundle: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum DepthUnits {
+    Paper,
+    Unit,
+}
+
+impl DepthUnits {
+    fn net_range(self) -> [f32; 2] {
+        match self {
+            DepthUnits::Paper => model::PAPER_NET_RANGE,
+            DepthUnits::Unit => model::UNIT_NET_RANGE,
+        }
+    }
+}
+
+fn parse_hw(s: &str) -> Result<[usize; 2], String> {
+    let (h, w) = s.split_once('x').ok_or_else(|| format!("expected HxW, got {s:?}"))?;
+    let parse = |v: &str| v.trim().parse::<usize>().map_err(|e| format!("{v:?}: {e}"));
+    let hw = [parse(h)?, parse(w)?];
+    if hw.iter().any(|&v| v == 0 || v % 32 != 0) {
+        return Err(format!("sides must be positive multiples of 32, got {s}"));
+    }
+    Ok(hw)
+}
+
+/// How the run is carried out: `--devices` when given, else `--device`; resume, loader threads.
+fn options(c: &Common) -> Result<RunOptions> {
+    let devices = match &c.devices {
+        Some(list) => model::backend::devices(list),
+        None => model::backend::working_device(&c.device).map(|d| vec![d]),
+    }
+    .map_err(anyhow::Error::msg)?;
+    Ok(RunOptions { devices, resume: c.resume, loader_workers: c.loader_workers, inject_nan_step: c.inject_nan_step })
+}
+
+/// The run's settings, checked before any work.
+fn config(c: &Common, input_hw: [usize; 2], net_range: [f32; 2], freeze_encoder: bool) -> Result<FitConfig> {
+    let config = FitConfig {
+        data: c.data.clone(),
+        input_hw,
+        net_range,
+        schedule: c.schedule,
+        warmup_steps: c.warmup_steps,
+        val_fraction: c.val_fraction,
+        epochs: c.epochs,
+        batch: c.batch,
+        lr: c.lr,
+        seed: c.seed,
+        checkpoint_every: c.checkpoint_every,
+        on_bad_data: c.on_bad_data,
+        max_bad_steps: c.max_bad_steps,
+        freeze_encoder,
+        train_fraction: c.train_fraction,
+    };
+    config.validate()?;
+    Ok(config)
+}
+
+fn run_fit(args: FitArgs) -> Result<()> {
+    let cfg = config(&args.common, args.input, args.depth_units.net_range(), false)?;
+    let model_config =
+        model::DenseDepthConfig::new(model::DenseNetConfig::by_name(&args.preset).map_err(anyhow::Error::msg)?);
+    let options = options(&args.common)?;
+    let dev = options.devices[0].clone();
+    let weights = match &args.encoder_weights {
+        Some(path) => {
+            let imported = model::import::load_pytorch(path, &dev)?;
+            if imported.config.encoder != model_config.encoder {
+                bail!("{}: its DenseNet is not the {} preset", path.display(), args.preset);
+            }
+            let mut net = model_config.init(&dev);
+            net.encoder = imported.model.encoder;
+            Some(net)
+        }
+        None => None,
+    };
+    let fitted = fit_with(&args.common.out, &cfg, Start { model_config, weights }, &options)?;
+    report(&fitted.state);
+    if let Some(bundle) = &args.bundle {
+        train::export::export_net(&fitted.net, &fitted.state, bundle)?;
+        println!("wrote bundle {}", bundle.display());
+    }
+    Ok(())
+}
+
+fn run_finetune(args: FinetuneArgs) -> Result<()> {
+    let options = options(&args.common)?;
+    let dev = options.devices[0].clone();
+    let (net, file) = model::bundle::load_bundle(&args.from, &dev)?;
+    let input = [file.input_height_px, file.input_width_px];
+    // The bundle's depth units: the network's output layer was trained to them.
+    let net_range = [file.depth_scale.net_min, file.depth_scale.net_max];
+    let cfg = config(&args.common, input, net_range, args.freeze_encoder)?;
+    let data = DepthDataset::open(&cfg.data, None, input)?;
+    if (data.sensor.radius_mm - file.sensor.radius_mm).abs() > 1e-9 {
+        bail!("{}: the dataset's sensor radius differs from the bundle's", cfg.data.display());
+    }
+    let start = Start { model_config: file.model.clone(), weights: Some(net) };
+    let fitted = fit_with(&args.common.out, &cfg, start, &options)?;
+    report(&fitted.state);
+    if let Some(bundle) = &args.bundle {
+        train::export::export_net(&fitted.net, &fitted.state, bundle)?;
+        println!("wrote bundle {}", bundle.display());
+    }
+    Ok(())
+}
+
+fn report(state: &train::checkpoint::RunState) {
+    for m in &state.history {
+        println!(
+            "epoch {:3}: train loss {:.4}  validation L1 {:.4} mm  ({:.0} s)",
+            m.epoch, m.train_loss, m.val_l1_mm, m.seconds
+        );
+    }
+    if state.skipped_steps > 0 {
+        println!("{} steps skipped for a non-finite loss", state.skipped_steps);
+    }
+    if !state.bad_samples.is_empty() {
+        println!("{} bad samples skipped:", state.bad_samples.len());
+        for s in &state.bad_samples {
+            println!("  {s}");
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    sensor::alloc::keep_freed_memory();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Fit(args) => run_fit(args),
+        Command::Finetune(args) => run_finetune(args),
+        Command::Export { run, out } => train::export::export_run(&run, &out, &model::backend::default_device())
+            .map(|()| println!("wrote bundle {}", out.display())),
+        Command::Import { pth, sensor, input, out } => {
+            train::export::import_pth(&pth, &sensor, input, &out, &model::backend::default_device())
+                .with_context(|| format!("importing {}", pth.display()))
+                .map(|()| println!("wrote bundle {}", out.display()))
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

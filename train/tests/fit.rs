@@ -1,0 +1,250 @@
+//! Training end to end on a tiny simulated dataset: learning, export, kill -9 and resume,
+//! non-finite steps and bad samples.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use burn::tensor::{Distribution, Tensor};
+use train::{FitConfig, OnBadData, RunOptions, Start, fit, fit_with};
+
+mod common;
+use common::tiny_dataset;
+
+const BIN: &str = env!("CARGO_BIN_EXE_train");
+
+fn config(data: &Path, epochs: usize) -> FitConfig {
+    FitConfig {
+        epochs,
+        batch: 2,
+        lr: 3e-3,
+        seed: 5,
+        checkpoint_every: 3,
+        max_bad_steps: 3,
+        val_fraction: 0.0,
+        ..FitConfig::new(data.into(), [64, 64])
+    }
+}
+
+fn tiny_start() -> Start {
+    Start { model_config: model::DenseDepthConfig::new(model::DenseNetConfig::tiny()), weights: None }
+}
+
+fn fit_args(data: &Path, out: &Path) -> Vec<String> {
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    ["fit", "--data", &s(data), "--out", &s(out), "--preset", "tiny", "--input", "64x64", "--epochs", "3"]
+        .iter()
+        .map(|a| a.to_string())
+        .chain(["--batch", "2", "--lr", "3e-3", "--seed", "5", "--checkpoint-every", "2"].map(String::from))
+        .collect()
+}
+
+fn export(run: &Path, out: &Path) {
+    let r = Command::new(BIN)
+        .args(["export", "--run", run.to_str().unwrap(), "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+}
+
+fn predictions(bundle: &Path) -> Vec<f32> {
+    let device = model::backend::default_device();
+    let (net, _) = model::bundle::load_bundle(bundle, &device).unwrap();
+    // The same input for every call: a fixed pattern rather than random numbers.
+    let values: Vec<f32> = (0..2 * 3 * 64 * 64).map(|i| ((i * 7919) % 1000) as f32 / 1000.0).collect();
+    let x = Tensor::<4>::from_data(burn::tensor::TensorData::new(values, [2, 3, 64, 64]), &device);
+    net.forward(x).into_data().try_to_vec::<f32>().unwrap()
+}
+
+#[test]
+fn a_tiny_dataset_trains_and_its_bundle_predicts_the_same() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    tiny_dataset(&data);
+    // Targets keep depths above 1 mm (a float image resize would clamp them there).
+    let set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
+    let deepest = (0..set.records.len())
+        .max_by(|&a, &b| set.records[a].stats.max_depth_mm.total_cmp(&set.records[b].stats.max_depth_mm));
+    let deepest = deepest.unwrap();
+    assert!(set.records[deepest].stats.max_depth_mm > 2.0);
+    let item = set.load(deepest, None).unwrap();
+    let max_mm = item.depth.iter().map(|&v| set.scale.to_mm(v)).fold(0.0f32, f32::max);
+    assert!(max_mm > 1.5, "targets are cut at {max_mm} mm");
+    let device = model::backend::default_device();
+    let run = tmp.path().join("run");
+    let fitted = fit(&run, &config(&data, 2), tiny_start(), &device, false).unwrap();
+    let h = &fitted.state.history;
+    assert_eq!(h.len(), 2);
+    assert!(h.iter().all(|m| m.train_loss.is_finite() && m.val_l1_mm.is_finite()));
+    assert!(h[1].val_loss < h[0].val_loss, "validation loss must drop: {h:?}");
+    assert!(run.join("metrics.csv").is_file() && run.join("metrics.json").is_file());
+
+    let bundle = tmp.path().join("bundle");
+    train::export::export_net(&fitted.net, &fitted.state, &bundle).unwrap();
+    assert!(bundle.join("reference.png").is_file(), "the unit's reference image travels with the bundle");
+    let (loaded, file) = model::bundle::load_bundle(&bundle, &device).unwrap();
+    assert_eq!([file.input_height_px, file.input_width_px], [64, 64]);
+    let x = Tensor::<4>::random([1, 3, 64, 64], Distribution::Uniform(0.0, 1.0), &device);
+    let a = fitted.net.forward(x.clone()).into_data().try_to_vec::<f32>().unwrap();
+    let b = loaded.forward(x).into_data().try_to_vec::<f32>().unwrap();
+    assert_eq!(a, b, "the exported bundle predicts exactly what the trained network does");
+}
+
+#[test]
+fn a_run_killed_at_any_moment_resumes_to_the_same_weights() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    tiny_dataset(&data);
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let r = Command::new(BIN).args(fit_args(&data, &a)).output().unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+
+    // Kill -9 once a mid-epoch checkpoint exists.
+    let mut child =
+        Command::new(BIN).args(fit_args(&data, &b)).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
+    let start = Instant::now();
+    while !b.join("checkpoint/state.json").is_file() {
+        assert!(start.elapsed() < Duration::from_secs(120), "no checkpoint appeared");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(150));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    // The kill must have landed mid-run, or the resume below proves nothing.
+    let ckpt = train::checkpoint::latest(&b).expect("a checkpoint survives the kill");
+    let state = train::checkpoint::read_state(&ckpt).unwrap();
+    assert!(state.epoch < 3, "the run finished before it could be killed: {state:?}");
+    let r = Command::new(BIN).args(fit_args(&data, &b)).output().unwrap();
+    assert!(!r.status.success(), "a second run into the same folder without --resume is refused");
+    assert!(String::from_utf8_lossy(&r.stderr).contains("--resume"));
+    let r = Command::new(BIN).args(fit_args(&data, &b)).arg("--resume").output().unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+
+    let (ba, bb) = (tmp.path().join("bundle-a"), tmp.path().join("bundle-b"));
+    export(&a, &ba);
+    export(&b, &bb);
+    assert_eq!(predictions(&ba), predictions(&bb), "resumed and uninterrupted runs end with the same weights");
+    let metrics = |run: &PathBuf| std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let strip = |s: String| s.lines().map(|l| l.rsplit_once(',').unwrap().0.to_string()).collect::<Vec<_>>();
+    assert_eq!(strip(metrics(&a)), strip(metrics(&b)), "same losses, epoch by epoch");
+}
+
+#[test]
+fn unknown_unbuilt_or_repeated_devices_are_refused_before_any_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let refusal = |extra: &[&str]| {
+        let r = Command::new(BIN).args(fit_args(&tmp.path().join("no-data"), &out)).args(extra).output().unwrap();
+        assert!(!r.status.success(), "{extra:?} must be refused");
+        String::from_utf8_lossy(&r.stderr).into_owned()
+    };
+    assert!(refusal(&["--devices", "flex,cpu"]).contains("twice"));
+    assert!(refusal(&["--device", "tpu"]).contains("\"tpu\""));
+    // Without the cuda feature the message says how to build it; with it and no GPU, which
+    // device cannot start.
+    let cuda = refusal(&["--devices", "cuda:0,cuda:1"]);
+    assert!(cuda.contains("--features model/cuda") || cuda.contains("cannot start"), "{cuda}");
+    assert!(!out.exists(), "nothing is written for a refused device");
+}
+
+#[test]
+fn non_finite_steps_are_skipped_and_bad_samples_are_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    tiny_dataset(&data);
+    let device = model::backend::default_device();
+
+    let nan = RunOptions { inject_nan_step: Some(4), ..RunOptions::on(&device) };
+    let fitted = fit_with(&tmp.path().join("nan"), &config(&data, 1), tiny_start(), &nan).unwrap();
+    assert_eq!(fitted.state.skipped_steps, 1);
+    assert!(fitted.state.history[0].train_loss.is_finite());
+
+    let stop = FitConfig { max_bad_steps: 1, ..config(&data, 1) };
+    let run = tmp.path().join("stop");
+    let nan = RunOptions { inject_nan_step: Some(2), ..RunOptions::on(&device) };
+    let e = fit_with(&run, &stop, tiny_start(), &nan).err().unwrap().to_string();
+    assert!(e.contains("non-finite") && e.contains("checkpoint"), "{e}");
+
+    // A corrupt image: named, and the run stops or skips it as asked.
+    let manifest = formats::dataset::Manifest::load(&data).unwrap();
+    let victim = manifest.samples.iter().find(|s| s.split == dataset::Split::Train).unwrap();
+    let image = data.join(victim.image.as_ref().unwrap());
+    std::fs::write(&image, b"\x89PNG\r\n\x1a\n garbage").unwrap();
+    let e = fit(&tmp.path().join("bad"), &config(&data, 1), tiny_start(), &device, false).err().unwrap();
+    let e = format!("{e:#}");
+    assert!(e.contains(image.file_name().unwrap().to_str().unwrap()) && e.contains("skip"), "{e}");
+    let skip = FitConfig { on_bad_data: OnBadData::Skip, ..config(&data, 1) };
+    let fitted = fit(&tmp.path().join("skip"), &skip, tiny_start(), &device, false).unwrap();
+    assert_eq!(fitted.state.bad_samples.len(), 1);
+    assert!(fitted.state.bad_samples[0].contains(image.file_name().unwrap().to_str().unwrap()));
+
+    // An image of the wrong size.
+    image::RgbImage::new(100, 100).save(&image).unwrap();
+    let e = fit(&tmp.path().join("size"), &config(&data, 1), tiny_start(), &device, false).err().unwrap();
+    assert!(format!("{e:#}").contains("image is 100x100"), "{e:#}");
+    // A depth map beyond the sensor's range (with a good image back in place).
+    let other = manifest.samples.iter().find(|s| s.id != victim.id).unwrap();
+    std::fs::copy(data.join(other.image.as_ref().unwrap()), &image).unwrap();
+    let mut deep = sensor::DepthMap::zeros(570);
+    deep.depth_mm[1000] = 20.0;
+    let depth_path = data.join(&victim.depth);
+    std::fs::write(&depth_path, deep.to_png_um()).unwrap();
+    let e = fit(&tmp.path().join("deep"), &config(&data, 1), tiny_start(), &device, false).err().unwrap();
+    let e = format!("{e:#}");
+    assert!(e.contains("outside") && e.contains(depth_path.file_name().unwrap().to_str().unwrap()), "{e}");
+}
+
+#[test]
+fn finetuning_with_a_frozen_encoder_changes_only_the_decoder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    tiny_dataset(&data);
+    let device = model::backend::default_device();
+    let fitted = fit(&tmp.path().join("base"), &config(&data, 1), tiny_start(), &device, false).unwrap();
+    let base = tmp.path().join("base-bundle");
+    train::export::export_net(&fitted.net, &fitted.state, &base).unwrap();
+
+    let (run, tuned) = (tmp.path().join("tune"), tmp.path().join("tuned-bundle"));
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let r = Command::new(BIN)
+        .args(["finetune", "--from", &s(&base), "--data", &s(&data), "--out", &s(&run), "--bundle", &s(&tuned)])
+        .args(["--epochs", "1", "--batch", "2", "--lr", "1e-2", "--freeze-encoder"])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let (a, _) = model::bundle::load_bundle(&base, &device).unwrap();
+    let (b, _) = model::bundle::load_bundle(&tuned, &device).unwrap();
+    let v = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+    assert_eq!(v(a.encoder.conv0.weight.val()), v(b.encoder.conv0.weight.val()), "a frozen encoder keeps its weights");
+    assert_ne!(v(a.decoder.conv3.weight.val()), v(b.decoder.conv3.weight.val()), "the decoder learns");
+}
+
+#[test]
+#[ignore = "needs ../shared"]
+fn a_pytorch_state_dict_becomes_a_bundle() {
+    let fixtures = sensor::shared::shared_dir("DENSETACT_FIXTURES", "fixtures");
+    let tmp = tempfile::tempdir().unwrap();
+    let sensor_json = tmp.path().join("sensor.json");
+    formats::write_json(&sensor_json, &sensor::Sensor::default()).unwrap();
+    let out = tmp.path().join("bundle");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let r = Command::new(BIN)
+        .args(["import", "--pth", &s(&fixtures.join("densedepth_tiny.pth")), "--sensor", &s(&sensor_json)])
+        .args(["--input", "64x96", "--out", &s(&out)])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let device = model::backend::default_device();
+    let (net, file) = model::bundle::load_bundle(&out, &device).unwrap();
+    assert_eq!((file.input_height_px, file.input_width_px), (64, 96));
+    let direct = model::import::load_pytorch(&fixtures.join("densedepth_tiny.pth"), &device).unwrap().model;
+    let x = Tensor::<4>::random([1, 3, 64, 96], Distribution::Uniform(0.0, 1.0), &device);
+    let v = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+    assert_eq!(v(net.forward(x.clone())), v(direct.forward(x)));
+
+    let r = Command::new(BIN)
+        .args(["import", "--pth", &s(&tmp.path().join("missing.pth")), "--sensor", &s(&sensor_json), "--out", &s(&out)])
+        .output()
+        .unwrap();
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("missing.pth"));
+}
