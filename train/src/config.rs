@@ -115,7 +115,7 @@ impl FitConfig {
             |ok: bool, flag, rule, value: String| if ok { Ok(()) } else { Err(SettingError { flag, rule, value }) };
         let [h, w] = self.input_hw;
         check(
-            h > 0 && w > 0 && h % 32 == 0 && w % 32 == 0,
+            h > 0 && w > 0 && h.is_multiple_of(32) && w.is_multiple_of(32),
             "--input",
             "HxW with both sides positive multiples of 32",
             format!("{h}x{w}"),

@@ -242,7 +242,7 @@ impl<'a> Run<'a> {
             let mean = self.state.epoch_loss_sum / self.state.epoch_loss_count.max(1) as f64;
             progress.set_message(&format!("loss {mean:.4}"));
             let s = &self.state;
-            if s.batch < n_batches && s.global_step % config.checkpoint_every == 0 && self.bad_run == 0 {
+            if s.batch < n_batches && s.global_step.is_multiple_of(config.checkpoint_every) && self.bad_run == 0 {
                 checkpoint::save(self.dir, &self.net, &self.optim, s)?;
             }
         }

@@ -248,3 +248,19 @@ fn a_pytorch_state_dict_becomes_a_bundle() {
         .unwrap();
     assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("missing.pth"));
 }
+
+/// Training reads datasets through `formats`, without the generator's dependencies.
+#[test]
+fn train_does_not_link_the_generator() {
+    let r = Command::new(env!("CARGO"))
+        .args(["tree", "-p", "train", "-e", "normal", "--prefix", "none", "--offline"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let tree = String::from_utf8_lossy(&r.stdout);
+    assert!(tree.contains("formats v"), "the tree lists formats: {tree}");
+    for banned in ["obvhs ", "tobj ", "imageproc ", "dataset "] {
+        assert!(!tree.lines().any(|l| l.starts_with(banned)), "train must not depend on {banned}");
+    }
+}

@@ -38,7 +38,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     let (h, w) = args.input.split_once('x').context("--input is HxW")?;
-    let input_hw = [h.parse()?, w.parse()?];
+    let input_hw: [usize; 2] = [h.parse()?, w.parse()?];
     let device = model::backend::working_device(&args.device).map_err(anyhow::Error::msg)?;
     let kit = Kit::procedural(25.0);
     let data_dir = args.work.join(format!("data-{}", args.samples));
@@ -92,7 +92,11 @@ pub fn run(args: Args) -> Result<()> {
     }
     let step_s = crate::timing::median(step_times.clone());
     let step_rate = args.batch as f64 / step_s;
-    println!("train step alone: median {:.1} ms over {} steps, {step_rate:.2} samples/s", step_s * 1e3, step_times.len());
+    println!(
+        "train step alone: median {:.1} ms over {} steps, {step_rate:.2} samples/s",
+        step_s * 1e3,
+        step_times.len()
+    );
 
     // Training: a run of `steps` steps (one epoch of that many batches), batches decoded in the
     // step's thread, then ahead on two loader threads.
@@ -117,7 +121,9 @@ pub fn run(args: Args) -> Result<()> {
         let seconds = fitted.state.history[0].seconds;
         let steps = fitted.state.global_step;
         let rate = (steps as usize * args.batch) as f64 / seconds;
-        println!("train epoch ({steps} steps, with validation), {workers} loader threads: {seconds:.2} s, {rate:.2} samples/s");
+        println!(
+            "train epoch ({steps} steps, with validation), {workers} loader threads: {seconds:.2} s, {rate:.2} samples/s"
+        );
         epoch.push((workers, seconds, rate));
     }
     println!();

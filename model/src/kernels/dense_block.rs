@@ -46,10 +46,10 @@ fn same_size(conv: &Conv2d, x: &Tensor<4>) -> Option<usize> {
 
 impl Layer {
     fn new(layer: &DenseLayerParams, x: &Tensor<4>) -> Option<Layer> {
-        if same_size(&layer.conv1, x)? != 1 {
+        if same_size(layer.conv1, x)? != 1 {
             return None;
         }
-        let kernel = same_size(&layer.conv2, x)?;
+        let kernel = same_size(layer.conv2, x)?;
         let (scale1, shift1) = inference_affine(layer.norm1);
         let conv1 = flex_f32(&layer.conv1.weight.val())?;
         let bias1 = flex_bias(layer.conv1)?.map(|b| slice(&b).to_vec());
