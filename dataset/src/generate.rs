@@ -4,21 +4,21 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
-use rayon::prelude::*;
+use anyhow::{Context, Result};
 use sensor::Sensor;
 
 use formats::dataset::{
     DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, LIFTED_Z_TRAVEL_MM, Manifest, SampleRecord,
     SplitSummary, sample_name,
 };
-use formats::fs::{png_is_complete, remove_temporaries, write_atomic, write_atomic_unsynced};
-use formats::{Progress, SplitMix64, read_json, write_json};
+use formats::fs::{write_atomic, write_atomic_unsynced};
+use formats::{SplitMix64, write_json};
 use sensor::frame::encode_png_rgb;
 
 use crate::kit::{Kit, Split, Trial};
 use crate::raycast::{RayBundle, RayCaster, Skipping};
 use crate::render::Renderer;
+use crate::resumable;
 use crate::scene::{RigPose, Scene};
 use crate::unit::SensorUnit;
 
@@ -36,12 +36,25 @@ pub fn draw_sample<'k>(kit: &'k Kit, params: &GeneratorParams, id: u32) -> (&'k 
     let mut pose = RigPose {
         b_axis_deg: rng.range(b0 as f64, b1 as f64) as f32,
         z_travel_mm: rng.range(z0 as f64, z1 as f64) as f32,
+        ..RigPose::default()
     };
-    // Drawn last and only when asked for, so that datasets made without lifting keep their samples.
+    // Drawn after the rest and only when asked for, so that datasets made without lifting or
+    // tilts keep their samples.
     if params.lifted_fraction > 0.0 && rng.unit() < params.lifted_fraction as f64 {
         pose.z_travel_mm = LIFTED_Z_TRAVEL_MM;
     }
+    if !params.a_axis_deg.is_zero() {
+        pose.a_axis_deg = params.a_axis_deg.pick(rng.unit());
+    }
+    if !params.c_axis_deg.is_zero() {
+        pose.c_axis_deg = params.c_axis_deg.pick(rng.unit());
+    }
     (trial, pose)
+}
+
+/// The noise seed of sample `id`'s camera image.
+pub fn noise_seed(params: &GeneratorParams, id: u32) -> u64 {
+    SplitMix64::for_item(params.seed ^ 0x1a6e, id as u64).next_u64()
 }
 
 /// Builds a trial's scene in the given pose.
@@ -100,21 +113,25 @@ impl Generator<'_> {
     pub fn run(&self) -> Result<RunReport> {
         let start = Instant::now();
         self.prepare_folder()?;
-        let done = self.finished_records()?;
+        let out = &self.out;
+        let done = resumable::finished(
+            "samples",
+            0..self.params.count,
+            |id| out.join(format!("samples/{}.json", sample_name(id))),
+            |r: &SampleRecord| {
+                let mut files: Vec<PathBuf> = std::iter::once(&r.depth).chain(&r.image).map(|f| out.join(f)).collect();
+                if self.params.depth_u8 {
+                    files.push(out.join(format!("depth_u8/{}.png", sample_name(r.id))));
+                }
+                files
+            },
+            |id, r: &SampleRecord| r.id == id && r.image.is_some() == self.renderer.is_some(),
+        )?;
         let resumed = done.len();
         let todo: Vec<u32> = (0..self.params.count).filter(|id| !done.contains_key(id)).collect();
         let rays = RayBundle::new(self.sensor);
         let mask = self.sensor.valid_mask();
-        let progress = Progress::new("generating", todo.len() as u64);
-        let fresh: Vec<SampleRecord> = todo
-            .par_iter()
-            .map(|&id| {
-                let record = self.make_sample(id, &rays, &mask)?;
-                progress.inc(1);
-                Ok(record)
-            })
-            .collect::<Result<_>>()?;
-        progress.finish();
+        let fresh = resumable::make_all(&todo, "generating", |id| self.make_sample(id, &rays, &mask))?;
         let mut records = done;
         let generated = fresh.len();
         records.extend(fresh.into_iter().map(|r| (r.id, r)));
@@ -126,7 +143,8 @@ impl Generator<'_> {
         let manifest = Manifest {
             format_version: DATASET_FORMAT_VERSION,
             sensor: self.sensor.clone(),
-            generator: self.params.clone(),
+            generator: Some(self.params.clone()),
+            labelled: None,
             samples,
             summary,
         };
@@ -151,8 +169,7 @@ impl Generator<'_> {
         let image = match self.renderer {
             Some(renderer) => {
                 let rel = format!("images/{name}.png");
-                let noise_seed = SplitMix64::for_item(self.params.seed ^ 0x1a6e, id as u64).next_u64();
-                let img = renderer.render(&depth.depth_mm, Some(noise_seed));
+                let img = renderer.render(&depth.depth_mm, Some(noise_seed(&self.params, id)));
                 write_atomic_unsynced(&self.out.join(&rel), &encode_png_rgb(&img))?;
                 Some(rel)
             }
@@ -167,6 +184,7 @@ impl Generator<'_> {
             image,
             stats: DepthStats::of(&depth, mask),
             cast,
+            capture: None,
         };
         let json = serde_json::to_vec_pretty(&record).expect("record serialises");
         write_atomic_unsynced(&self.out.join(format!("samples/{name}.json")), &json)?;
@@ -183,68 +201,16 @@ impl Generator<'_> {
         if self.renderer.is_some() {
             subs.extend(["images", "unit"]);
         }
-        for sub in subs {
-            let dir = self.out.join(sub);
-            std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
-            remove_temporaries(&dir)?;
-        }
         let file = GeneratorFile {
             format_version: DATASET_FORMAT_VERSION,
             sensor: self.sensor.clone(),
             params: self.params.clone(),
         };
-        let path = self.out.join("generator.json");
-        if path.exists() {
-            let existing: GeneratorFile = read_json(&path)?;
-            if existing != file {
-                bail!(
-                    "{}: this folder holds a dataset made with other parameters or another sensor; \
-                     use another --out, or remove the folder to start again",
-                    path.display()
-                );
-            }
-        } else {
-            write_json(&path, &file)?;
-        }
+        resumable::prepare(&self.out, &subs, "generator.json", &file, "a dataset", "--out")?;
         if let Some(renderer) = self.renderer {
             write_unit_files(&self.out.join("unit"), renderer)?;
         }
         Ok(())
-    }
-
-    /// Records of samples finished by an earlier run.
-    fn finished_records(&self) -> Result<BTreeMap<u32, SampleRecord>> {
-        let mut done = BTreeMap::new();
-        let mut damaged = 0;
-        for id in 0..self.params.count {
-            let path = self.out.join(format!("samples/{}.json", sample_name(id)));
-            if !path.exists() {
-                continue;
-            }
-            // After a power cut a record or its files may be short: such a sample is made again.
-            let Ok(record) = read_json::<SampleRecord>(&path) else {
-                damaged += 1;
-                std::fs::remove_file(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
-                continue;
-            };
-            if record.id != id || record.image.is_some() != self.renderer.is_some() {
-                bail!("{}: record does not match sample {id} of this dataset", path.display());
-            }
-            let mut files: Vec<String> = std::iter::once(record.depth.clone()).chain(record.image.clone()).collect();
-            if self.params.depth_u8 {
-                files.push(format!("depth_u8/{}.png", sample_name(id)));
-            }
-            if !files.iter().all(|f| png_is_complete(&self.out.join(f))) {
-                damaged += 1;
-                std::fs::remove_file(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
-                continue;
-            }
-            done.insert(id, record);
-        }
-        if damaged > 0 {
-            eprintln!("{damaged} samples left incomplete by an interrupted run will be made again");
-        }
-        Ok(done)
     }
 }
 

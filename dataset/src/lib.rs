@@ -13,6 +13,7 @@ pub mod calibration;
 pub mod generate;
 pub mod holes;
 pub mod kit;
+pub mod label;
 pub mod mesh;
 pub mod procedural;
 // AVX2 kernels, reached only through `simd::Avx2` tokens.
@@ -20,7 +21,9 @@ pub mod procedural;
 pub mod raycast;
 #[allow(unsafe_code)]
 pub mod render;
+mod resumable;
 pub mod scene;
+pub mod session;
 pub mod shapes;
 mod simd;
 pub mod unit;

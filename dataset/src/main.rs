@@ -7,8 +7,10 @@ use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use dataset::calibration::{CalibrationOptions, GpTarget, calibrate, compare};
 use dataset::generate::{Generator, report_lines};
+use dataset::label::{Labeller, OnBadRow};
+use dataset::session::SessionWriter;
 use dataset::{Kit, Renderer, SawTooth, SawToothShot, SensorUnit, Skipping};
-use formats::dataset::GeneratorParams;
+use formats::dataset::{Angles, GeneratorParams};
 use formats::fs::write_atomic;
 use formats::write_json;
 use sensor::Sensor;
@@ -30,6 +32,30 @@ enum Command {
     Sawtooth(SawtoothArgs),
     /// Calibrate the fisheye correspondence from an image of the saw-tooth indicator.
     Calibrate(CalibrateArgs),
+    /// Ground truth for a capture session (captures.csv, frames, reference frame): each frame
+    /// cropped around the calibrated optical centre with the depth ray-cast for its logged pose
+    /// (resumable: run the same command again after a kill).
+    Label(LabelArgs),
+}
+
+#[derive(clap::Args)]
+struct LabelArgs {
+    /// The session folder: captures.csv, the frames it names, reference.png or .jpg.
+    #[arg(long)]
+    session: PathBuf,
+    /// The kit the session pressed: its folder (stl/, Index_training.csv, Index_test.csv), or
+    /// `procedural` for the embedded kit (simulated sessions).
+    #[arg(long, default_value = "procedural")]
+    kit: String,
+    /// The unit's calibrated sensor description (from `dataset calibrate`).
+    #[arg(long)]
+    sensor: PathBuf,
+    /// The dataset folder to write.
+    #[arg(long)]
+    out: PathBuf,
+    /// What a bad row does: stop at the first (naming its line), or skip it (counted, listed).
+    #[arg(long, value_enum, default_value_t = OnBadRow::Stop)]
+    on_bad_row: OnBadRow,
 }
 
 #[derive(clap::Args)]
@@ -55,7 +81,7 @@ struct SawtoothArgs {
 
 #[derive(clap::Args)]
 struct CalibrateArgs {
-    /// RGB camera frame of the pressed saw-tooth indicator (PNG).
+    /// The camera's frame of the pressed saw-tooth indicator (PNG or JPEG, RGB).
     #[arg(long)]
     image: PathBuf,
     /// Where to write the calibrated sensor description (JSON).
@@ -80,9 +106,16 @@ struct CalibrateArgs {
 
 #[derive(clap::Args)]
 struct GenerateArgs {
-    /// Output folder.
-    #[arg(long)]
-    out: PathBuf,
+    /// Output folder: a dataset.
+    #[arg(long, required_unless_present = "session", conflicts_with = "session")]
+    out: Option<PathBuf>,
+    /// Write a simulated capture session instead of a dataset (needs --unit): the camera's full
+    /// frames, captures.csv, reference.png and sawtooth.png, as a lab's rig would produce them.
+    #[arg(long, requires = "unit")]
+    session: Option<PathBuf>,
+    /// With --session: frames as JPEG of this quality (1..100), as USB cameras stream them.
+    #[arg(long, requires = "session", value_parser = clap::value_parser!(u8).range(1..=100))]
+    jpeg_quality: Option<u8>,
     /// Number of samples.
     #[arg(long, default_value_t = 100)]
     count: u32,
@@ -100,6 +133,16 @@ struct GenerateArgs {
     z_min_mm: f32,
     #[arg(long, default_value_t = 2.5, allow_negative_numbers = true)]
     z_max_mm: f32,
+    /// B-axis turns to draw (degrees): a range `0..360`, a list `0,90,180` or one value.
+    #[arg(long, default_value = "0..360", allow_hyphen_values = true)]
+    b_deg: Angles,
+    /// A-axis tilts to draw (degrees, about the sensor frame's x axis): e.g. `0,45` or
+    /// `-45..45`; default none.
+    #[arg(long, default_value = "0", allow_hyphen_values = true)]
+    a_deg: Angles,
+    /// C-axis tilts to draw (degrees, about the sensor frame's y axis); default none.
+    #[arg(long, default_value = "0", allow_hyphen_values = true)]
+    c_deg: Angles,
     /// Chance that a sample's rig is lifted clear of the sensor: frames without contact, which
     /// a network must learn to answer with zeros.
     #[arg(long, default_value_t = 0.0)]
@@ -144,22 +187,73 @@ fn generate(args: GenerateArgs) -> Result<()> {
         Some(dir) => Kit::load_dir(dir).with_context(|| format!("loading the kit in {}", dir.display()))?,
         None => Kit::procedural(sensor.radius_mm as f32),
     };
+    let b_axis_deg = match args.b_deg {
+        Angles::Range(range) => range,
+        Angles::List(v) if v.len() == 1 => [v[0], v[0]],
+        Angles::List(_) => bail!("--b-deg draws from a range (`0..360`) or takes one value, not a list"),
+    };
+    for (flag, angles) in [("--a-deg", &args.a_deg), ("--c-deg", &args.c_deg)] {
+        if angles.max_abs() > dataset::label::MAX_TILT_DEG {
+            bail!(
+                "{flag}: tilts beyond +-{} degrees turn the indicator's base to the sensor",
+                dataset::label::MAX_TILT_DEG
+            );
+        }
+    }
     let params = GeneratorParams {
         seed: args.seed,
         count: args.count,
         kit: kit.source.clone(),
         z_travel_mm: [args.z_min_mm, args.z_max_mm],
-        b_axis_deg: [0.0, 360.0],
+        b_axis_deg,
         lifted_fraction: args.lifted_fraction,
         test_fraction: args.test_fraction,
         depth_u8: args.depth_u8,
         unit: args.unit,
+        a_axis_deg: args.a_deg,
+        c_axis_deg: args.c_deg,
     };
+    if let Some(dir) = &args.session {
+        let unit = unit.as_ref().context("--session needs --unit")?;
+        let writer = SessionWriter { out: dir.clone(), kit: &kit, unit, params, jpeg_quality: args.jpeg_quality };
+        let report = writer.run()?;
+        println!(
+            "{} frames ({} new) in {:.1} s; wrote {}",
+            report.frames,
+            report.made,
+            report.seconds,
+            dir.join(formats::session::CAPTURES_CSV).display()
+        );
+        return Ok(());
+    }
+    let out = args.out.clone().context("--out or --session")?;
     let skipping = if args.no_skip { Skipping::Off } else { Skipping::On };
     let generator =
-        Generator { out: args.out.clone(), sensor: &sensor, kit: &kit, params, skipping, renderer: renderer.as_ref() };
+        Generator { out: out.clone(), sensor: &sensor, kit: &kit, params, skipping, renderer: renderer.as_ref() };
     let report = generator.run()?;
     for line in report_lines(&report) {
+        println!("{line}");
+    }
+    println!("wrote {}", out.join("manifest.json").display());
+    Ok(())
+}
+
+fn label(args: LabelArgs) -> Result<()> {
+    let sensor = Sensor::load_json(&args.sensor)?;
+    let kit = match args.kit.as_str() {
+        "procedural" => Kit::procedural(sensor.radius_mm as f32),
+        dir => Kit::load_dir(std::path::Path::new(dir)).with_context(|| format!("loading the kit in {dir}"))?,
+    };
+    let labeller = Labeller {
+        session: args.session.clone(),
+        out: args.out.clone(),
+        sensor: &sensor,
+        kit: &kit,
+        on_bad_row: args.on_bad_row,
+        gate: Default::default(),
+    };
+    let report = labeller.run()?;
+    for line in dataset::label::report_lines(&report) {
         println!("{line}");
     }
     println!("wrote {}", args.out.join("manifest.json").display());
@@ -188,8 +282,7 @@ fn sawtooth(args: SawtoothArgs) -> Result<()> {
 }
 
 fn run_calibration(args: CalibrateArgs) -> Result<()> {
-    let img =
-        image::open(&args.image).with_context(|| format!("{}: not a readable image", args.image.display()))?.to_rgb8();
+    let img = sensor::frame::read(&args.image)?;
     let truth = args.truth.as_deref().map(Sensor::load_json).transpose()?;
     if !(args.pitch_deg > 0.0 && args.pitch_deg * args.teeth as f64 <= 90.0) {
         bail!("--pitch-deg x --teeth must stay within 90 degrees");
@@ -237,6 +330,7 @@ fn main() -> ExitCode {
         Command::Generate(args) => generate(args),
         Command::Sawtooth(args) => sawtooth(args),
         Command::Calibrate(args) => run_calibration(args),
+        Command::Label(args) => label(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -84,8 +84,7 @@ impl Scene {
                 indenters: indenters.len(),
             });
         }
-        let rig = Affine3A::from_translation(Vec3::new(0.0, 0.0, -pose.z_travel_mm))
-            * Affine3A::from_rotation_z(pose.b_axis_deg.to_radians());
+        let rig = rig_transform(pose);
         let mut parts = vec![indicator.mesh.transformed(&rig)];
         let mut placements = Vec::new();
         for (hole_index, &(indenter, angle_deg)) in indenters.iter().enumerate() {
@@ -101,6 +100,15 @@ impl Scene {
     pub fn part_refs(&self) -> Vec<&Mesh> {
         self.parts.iter().collect()
     }
+}
+
+/// The rig's transform of the seated assembly (see [`RigPose`]): tilt A about `x`, then C
+/// about `y`, then turn B about the sensor axis, then press down by the z travel.
+pub fn rig_transform(pose: RigPose) -> Affine3A {
+    Affine3A::from_translation(Vec3::new(0.0, 0.0, -pose.z_travel_mm))
+        * Affine3A::from_rotation_z(pose.b_axis_deg.to_radians())
+        * Affine3A::from_rotation_y(pose.c_axis_deg.to_radians())
+        * Affine3A::from_rotation_x(pose.a_axis_deg.to_radians())
 }
 
 /// Indenter frame -> shell frame: turn about its own axis, point `+z` inwards along the hole,
@@ -124,7 +132,7 @@ mod tests {
         let kit = crate::procedural::ProceduralKit::new(25.0);
         let indicator = &kit.indicators[0];
         let indenter = &kit.indenters[0];
-        let pose = RigPose { b_axis_deg: 0.0, z_travel_mm: 0.0 };
+        let pose = RigPose { b_axis_deg: 0.0, z_travel_mm: 0.0, ..RigPose::default() };
         let scene = Scene::assemble(indicator, &[(indenter, 30.0)], pose).unwrap();
         let seated = &scene.parts[1];
         let r_in = indicator.radii.inner_mm;
@@ -144,8 +152,14 @@ mod tests {
     fn b_axis_and_z_travel_move_the_assembly() {
         let kit = crate::procedural::ProceduralKit::new(25.0);
         let (indicator, indenter) = (&kit.indicators[0], &kit.indenters[1]);
-        let at =
-            |b, z| Scene::assemble(indicator, &[(indenter, 0.0)], RigPose { b_axis_deg: b, z_travel_mm: z }).unwrap();
+        let at = |b, z| {
+            Scene::assemble(
+                indicator,
+                &[(indenter, 0.0)],
+                RigPose { b_axis_deg: b, z_travel_mm: z, ..RigPose::default() },
+            )
+            .unwrap()
+        };
         let (a, turned, pressed) = (at(0.0, 0.0), at(90.0, 0.0), at(0.0, 1.5));
         for ((p, q), r) in a.parts[1].vertices.iter().zip(&turned.parts[1].vertices).zip(&pressed.parts[1].vertices) {
             let rotated = Quat::from_rotation_z(90f32.to_radians()) * *p;
@@ -154,12 +168,62 @@ mod tests {
         }
     }
 
+    /// Quarter turns written out by hand: Rx(90) (x, y, z) -> (x, -z, y), Ry(90) -> (z, y, -x),
+    /// Rz(90) -> (-y, x, z).
+    fn rx90(v: Vec3) -> Vec3 {
+        Vec3::new(v.x, -v.z, v.y)
+    }
+    fn ry90(v: Vec3) -> Vec3 {
+        Vec3::new(v.z, v.y, -v.x)
+    }
+    fn rz90(v: Vec3) -> Vec3 {
+        Vec3::new(-v.y, v.x, v.z)
+    }
+
+    /// A shell turned about each axis of the rig: the centre of its hole's rim lands where the
+    /// rotations, applied A, then C, then B, put it; z travel moves it straight down.
+    #[test]
+    fn a_b_and_c_turn_the_hole_where_the_rig_would() {
+        let kit = crate::procedural::ProceduralKit::new(25.0);
+        let indicator = &kit.indicators[0];
+        let hole = indicator.holes[0];
+        // The rim: vertices on the inner surface around the hole's axis.
+        let rim: Vec<usize> = (0..indicator.mesh.vertices.len())
+            .filter(|&i| {
+                let v = indicator.mesh.vertices[i];
+                (v.length() - indicator.radii.inner_mm).abs() < 0.05
+                    && v.normalize().angle_between(hole.axis) < (hole.radius_mm / indicator.radii.inner_mm) * 1.05
+            })
+            .collect();
+        assert!(rim.len() > 8, "the hole has a rim");
+        let centre = |pose: RigPose| {
+            let scene = Scene::assemble(indicator, &[], pose).unwrap();
+            rim.iter().map(|&i| scene.parts[0].vertices[i]).sum::<Vec3>() / rim.len() as f32
+        };
+        let rest = centre(RigPose::default());
+        let pose = |a, b, c, z| RigPose { a_axis_deg: a, b_axis_deg: b, c_axis_deg: c, z_travel_mm: z };
+        let cases: [(RigPose, Vec3); 6] = [
+            (pose(90.0, 0.0, 0.0, 0.0), rx90(rest)),
+            (pose(0.0, 0.0, 90.0, 0.0), ry90(rest)),
+            (pose(0.0, 90.0, 0.0, 0.0), rz90(rest)),
+            // A first, then C: the order matters.
+            (pose(90.0, 0.0, 90.0, 0.0), ry90(rx90(rest))),
+            (pose(90.0, 90.0, 90.0, 0.0), rz90(ry90(rx90(rest)))),
+            (pose(90.0, 0.0, 0.0, 1.5), rx90(rest) - Vec3::Z * 1.5),
+        ];
+        for (p, want) in cases {
+            let got = centre(p);
+            assert!(got.distance(want) < 1e-3, "{p:?}: hole centre at {got}, expected {want}");
+        }
+        assert!(ry90(rx90(rest)).distance(rx90(ry90(rest))) > 1.0, "the case tells the orders apart");
+    }
+
     #[test]
     fn too_many_indenters_or_unseatable_ones_are_errors() {
         let kit = crate::procedural::ProceduralKit::new(25.0);
         let one_hole = kit.indicators.iter().find(|i| i.holes.len() == 1).unwrap();
         let ind = &kit.indenters[0];
-        let pose = RigPose { b_axis_deg: 0.0, z_travel_mm: 0.0 };
+        let pose = RigPose { b_axis_deg: 0.0, z_travel_mm: 0.0, ..RigPose::default() };
         let e = Scene::assemble(one_hole, &[(ind, 0.0), (ind, 0.0)], pose).unwrap_err().to_string();
         assert!(e.contains("1 hole(s)"), "{e}");
         let pin = Indenter { name: "pin".into(), mesh: shapes::cylinder(1.0, 5.0, 16) };

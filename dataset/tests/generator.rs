@@ -96,7 +96,8 @@ fn bad_arguments_and_mismatched_folders_fail_clearly() {
     let r = generate(&out, 3, &["--z-max-mm", "1.0"]);
     assert!(!r.status.success());
     let err = String::from_utf8_lossy(&r.stderr);
-    assert!(err.contains("generator.json") && err.contains("other parameters"), "{err}");
+    // The refusal names the setting that differs, with both values.
+    assert!(err.contains("generator.json") && err.contains("z_travel_mm: [0.0,2.5] before, [0.0,1.0] now"), "{err}");
 
     let r = generate(&tmp.path().join("e"), 3, &["--kit", "/nonexistent/kit"]);
     assert!(!r.status.success());
@@ -118,7 +119,7 @@ fn a_units_images_follow_its_depth_maps() {
     let manifest = formats::dataset::Manifest::load(&a).unwrap();
     let truth = sensor::Sensor::load_json(&a.join("unit/truth.json")).unwrap();
     assert_eq!(manifest.sensor, truth, "a unit's dataset is labelled in its true geometry");
-    assert_eq!(manifest.generator.unit, Some(5));
+    assert_eq!(manifest.generator.as_ref().unwrap().unit, Some(5));
     let reference = image::open(a.join("unit/reference.png")).unwrap().to_rgb8();
     let mask = truth.valid_mask();
     for s in &manifest.samples {
@@ -153,7 +154,11 @@ fn a_units_images_follow_its_depth_maps() {
     }
     // Another unit cannot resume this folder.
     let r = generate(&a, 6, &["--unit", "6"]);
-    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("other parameters"));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        !r.status.success() && err.contains("other settings") && err.contains("params.unit: 5 before, 6 now"),
+        "{err}"
+    );
     let r = generate(&tmp.path().join("c"), 2, &["--unit", "5", "--sensor", "x.json"]);
     assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("--sensor"));
 }

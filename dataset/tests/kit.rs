@@ -86,7 +86,7 @@ fn test_trial_2_presses_where_the_indenters_are() {
 
     let sensor = Sensor::default();
     let rays = RayBundle::new(&sensor);
-    let pose = RigPose { b_axis_deg: 30.0, z_travel_mm: 0.5 };
+    let pose = RigPose { b_axis_deg: 30.0, z_travel_mm: 0.5, ..RigPose::default() };
     let scene = build_scene(&kit, &trial, pose).unwrap();
     let caster = RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On);
     let (depth, stats) = caster.depth_map(&sensor, &rays);
@@ -129,7 +129,7 @@ fn skipping_changes_nothing_on_kit_scenes() {
     let rays = RayBundle::new(&sensor);
     for (k, trial) in kit.trials.iter().step_by(9).enumerate() {
         // Shallow and deep presses, so that the shell itself comes into contact too.
-        let pose = RigPose { b_axis_deg: 47.0 * k as f32, z_travel_mm: [0.0, 1.3, 3.0][k % 3] };
+        let pose = RigPose { b_axis_deg: 47.0 * k as f32, z_travel_mm: [0.0, 1.3, 3.0][k % 3], ..RigPose::default() };
         let scene = build_scene(&kit, trial, pose).unwrap();
         let on = RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On).depth_map(&sensor, &rays);
         let off = RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::Off).depth_map(&sensor, &rays);
@@ -146,7 +146,8 @@ fn tiled_casting_equals_single_rays_on_a_kit_scene() {
     let sensor = Sensor::default();
     let rays = RayBundle::new(&sensor);
     let trial = kit.trials_in(Split::Test).into_iter().find(|t| t.number == 2).unwrap().clone();
-    let scene = build_scene(&kit, &trial, RigPose { b_axis_deg: 10.0, z_travel_mm: 2.0 }).unwrap();
+    let scene =
+        build_scene(&kit, &trial, RigPose { b_axis_deg: 10.0, z_travel_mm: 2.0, ..RigPose::default() }).unwrap();
     for skipping in [Skipping::On, Skipping::Off] {
         let caster = RayCaster::new(&scene.part_refs(), sensor.radius_mm, skipping);
         let (tiled, _) = caster.first_hits(&rays);

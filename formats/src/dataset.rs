@@ -73,13 +73,93 @@ pub struct Placement {
     pub angle_deg: f32,
 }
 
-/// The machine's pose of the assembly.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+/// The rig's pose of the indicator assembly, as the paper's CNC rig sets it.
+///
+/// In the sensor frame (origin at the hemisphere's centre, `x` along image `u`, `y` along image
+/// `v`, `z` along the optical axis towards the dome's top), the seated assembly is moved by
+/// `T(-z travel along z) * Rz(B) * Ry(C) * Rx(A)`: first tilted by A about the `x` axis, then by
+/// C about the `y` axis (the two hand-set axes, horizontal and through the sphere's centre, so
+/// a tilt keeps the shell concentric with the sensor and moves its holes over the dome), then
+/// turned by B about the sensor axis (the motorised axis), then pressed down by the z travel.
+/// Rotations are right-handed (counter-clockwise looking down the axis), in degrees.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct RigPose {
-    /// Rotation about the sensor axis (degrees).
+    /// Tilt about the sensor frame's `x` axis (degrees), applied first.
+    #[serde(default)]
+    pub a_axis_deg: f32,
+    /// Rotation about the sensor axis (degrees), applied after the tilts.
     pub b_axis_deg: f32,
+    /// Tilt about the sensor frame's `y` axis (degrees), applied after A.
+    #[serde(default)]
+    pub c_axis_deg: f32,
     /// How far the assembly is pressed down along the sensor axis from its seated pose (mm).
     pub z_travel_mm: f32,
+}
+
+/// Angles a generator draws from (degrees): a list (each equally likely) or a range (uniform).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Angles {
+    List(Vec<f32>),
+    Range([f32; 2]),
+}
+
+impl Default for Angles {
+    /// Always 0: no tilt.
+    fn default() -> Self {
+        Angles::List(vec![0.0])
+    }
+}
+
+impl Angles {
+    /// Whether every draw is 0 (then nothing is drawn, and datasets made before the A and C
+    /// axes existed keep their samples).
+    pub fn is_zero(&self) -> bool {
+        match self {
+            Angles::List(v) => v.iter().all(|&a| a == 0.0),
+            Angles::Range([lo, hi]) => *lo == 0.0 && *hi == 0.0,
+        }
+    }
+
+    /// One draw, given a uniform number in [0, 1).
+    pub fn pick(&self, unit: f64) -> f32 {
+        match self {
+            Angles::List(v) => v[((unit * v.len() as f64) as usize).min(v.len() - 1)],
+            Angles::Range([lo, hi]) => (*lo as f64 + (*hi - *lo) as f64 * unit) as f32,
+        }
+    }
+
+    /// The largest magnitude it can draw.
+    pub fn max_abs(&self) -> f32 {
+        match self {
+            Angles::List(v) => v.iter().fold(0.0, |m, a| m.max(a.abs())),
+            Angles::Range([lo, hi]) => lo.abs().max(hi.abs()),
+        }
+    }
+}
+
+impl std::str::FromStr for Angles {
+    type Err = String;
+
+    /// `45` (one value), `0,45,90` (a list) or `-30..30` (a range).
+    fn from_str(s: &str) -> Result<Self, String> {
+        let number = |t: &str| -> Result<f32, String> {
+            let v: f32 = t.trim().parse().map_err(|_| format!("{t:?} is not a number of degrees"))?;
+            if v.is_finite() { Ok(v) } else { Err(format!("{t:?} is not finite")) }
+        };
+        if let Some((lo, hi)) = s.split_once("..") {
+            let (lo, hi) = (number(lo)?, number(hi)?);
+            if lo > hi {
+                return Err(format!("the range {s:?} runs backwards"));
+            }
+            return Ok(Angles::Range([lo, hi]));
+        }
+        let list = s.split(',').map(number).collect::<Result<Vec<_>, _>>()?;
+        if list.is_empty() {
+            return Err("name at least one angle".into());
+        }
+        Ok(Angles::List(list))
+    }
 }
 
 /// What a scene is made of: enough to rebuild it.
@@ -149,6 +229,12 @@ pub struct GeneratorParams {
     /// Seed of the simulated unit whose images are rendered; `None`: depth only.
     #[serde(default)]
     pub unit: Option<u64>,
+    /// A-axis tilts to draw from (default: none).
+    #[serde(default, skip_serializing_if = "Angles::is_zero")]
+    pub a_axis_deg: Angles,
+    /// C-axis tilts to draw from (default: none).
+    #[serde(default, skip_serializing_if = "Angles::is_zero")]
+    pub c_axis_deg: Angles,
 }
 
 impl GeneratorParams {
@@ -165,6 +251,8 @@ impl GeneratorParams {
             test_fraction: 0.1,
             depth_u8: false,
             unit: None,
+            a_axis_deg: Angles::default(),
+            c_axis_deg: Angles::default(),
         }
     }
 }
@@ -195,6 +283,32 @@ pub struct SampleRecord {
     pub image: Option<String>,
     pub stats: DepthStats,
     pub cast: CastStats,
+    /// For a labelled capture session: the row of `captures.csv` the sample came from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capture: Option<CaptureInfo>,
+}
+
+/// Where a labelled sample came from in its session.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CaptureInfo {
+    /// The frame's path relative to the session folder.
+    pub frame: String,
+    /// Its row's line in `captures.csv`.
+    pub line: usize,
+    /// The row's other columns.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub extra: BTreeMap<String, String>,
+}
+
+/// What a labelled dataset was made from (`dataset label`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LabelParams {
+    /// The session folder.
+    pub session: String,
+    /// "procedural" or the kit folder.
+    pub kit: String,
+    /// Rows of the session's log.
+    pub rows: u32,
 }
 
 /// Summary of one split.
@@ -230,7 +344,12 @@ impl SplitSummary {
 pub struct Manifest {
     pub format_version: u32,
     pub sensor: Sensor,
-    pub generator: GeneratorParams,
+    /// What the generator was asked for, for a generated dataset.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub generator: Option<GeneratorParams>,
+    /// Where the frames came from, for a labelled capture session.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub labelled: Option<LabelParams>,
     pub samples: Vec<SampleRecord>,
     pub summary: BTreeMap<Split, SplitSummary>,
 }
@@ -275,6 +394,27 @@ pub fn sample_name(id: u32) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn poses_round_trip_and_old_records_read_as_untilted() {
+        let pose = RigPose { a_axis_deg: 45.0, b_axis_deg: 12.25, c_axis_deg: -30.0, z_travel_mm: 1.125 };
+        let text = serde_json::to_string(&pose).unwrap();
+        assert_eq!(serde_json::from_str::<RigPose>(&text).unwrap(), pose);
+        let old: RigPose = serde_json::from_str(r#"{"b_axis_deg": 10.0, "z_travel_mm": 2.0}"#).unwrap();
+        assert_eq!(old, RigPose { b_axis_deg: 10.0, z_travel_mm: 2.0, ..RigPose::default() });
+    }
+
+    #[test]
+    fn angles_parse_as_values_lists_and_ranges() {
+        assert_eq!("45".parse::<Angles>().unwrap(), Angles::List(vec![45.0]));
+        assert_eq!("0, 45,90".parse::<Angles>().unwrap(), Angles::List(vec![0.0, 45.0, 90.0]));
+        assert_eq!("-30..30".parse::<Angles>().unwrap(), Angles::Range([-30.0, 30.0]));
+        assert!("30..-30".parse::<Angles>().is_err() && "a".parse::<Angles>().is_err());
+        assert!(Angles::default().is_zero() && !Angles::List(vec![0.0, 45.0]).is_zero());
+        let list = Angles::List(vec![0.0, 45.0]);
+        assert_eq!((list.pick(0.2), list.pick(0.7), list.pick(0.999_999)), (0.0, 45.0, 45.0));
+        assert_eq!(Angles::Range([-10.0, 10.0]).pick(0.75), 5.0);
+    }
 
     #[test]
     fn splits_parse_and_print() {

@@ -95,6 +95,22 @@ pub fn png_is_complete(path: &Path) -> bool {
     matches!(tail, Ok(Some(t)) if t == IEND)
 }
 
+/// Whether a JPEG file ends with its end-of-image marker: a cheap check that it was written whole.
+pub fn jpeg_is_complete(path: &Path) -> bool {
+    use std::io::{Read, Seek, SeekFrom};
+    let tail = (|| {
+        let mut f = std::fs::File::open(path)?;
+        if f.metadata()?.len() < 4 {
+            return Ok::<_, std::io::Error>(None);
+        }
+        f.seek(SeekFrom::End(-2))?;
+        let mut tail = [0u8; 2];
+        f.read_exact(&mut tail)?;
+        Ok(Some(tail))
+    })();
+    matches!(tail, Ok(Some([0xff, 0xd9])))
+}
+
 /// Writes a whole folder atomically: `fill` writes into a temporary folder beside `dir`, which
 /// then replaces `dir` (the old one is renamed away first and removed last). A failed `fill`
 /// leaves `dir` as it was and removes the temporary folder.

@@ -3,6 +3,7 @@
 //!
 //! - [`dataset`]: the dataset folder's manifest, sample records and splits;
 //! - [`training`]: what a bundle records of its training;
+//! - [`session`]: a capture session's log (`captures.csv`) as a lab writes it;
 //! - [`fs`]: atomic file and folder writes (a reader never sees half a file);
 //! - [`json`]: JSON files that name themselves in every error;
 //! - [`rng`]: the seeded random streams that fix a dataset's content and a run's data order;
@@ -15,6 +16,7 @@ pub mod fs;
 pub mod json;
 pub mod progress;
 pub mod rng;
+pub mod session;
 pub mod training;
 
 pub use dataset::{Manifest, SampleRecord, Split};

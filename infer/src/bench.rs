@@ -41,9 +41,8 @@ pub fn time_frames(
 ) -> Result<FrameTimes, InferError> {
     let repeats = repeats.max(1);
     let decode = |bytes: &[u8]| -> Result<RgbImage, InferError> {
-        Ok(image::load_from_memory(bytes)
-            .map_err(|e| InferError::File { path: "<frame>".into(), message: format!("not a readable image: {e}") })?
-            .to_rgb8())
+        let path = std::path::Path::new("<frame>");
+        Ok(sensor::frame::crop(path, sensor::frame::decode(path, bytes)?, &predictor.file.sensor)?)
     };
     let frame = decode(frame_png)?;
     let input = predictor.input(std::slice::from_ref(&frame))?;

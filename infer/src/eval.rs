@@ -169,9 +169,7 @@ pub fn evaluate_dataset(
             let id = s.id;
             let image_rel = s.image.as_ref().with_context(|| format!("sample {id} has no image"))?;
             let image_path = data.join(image_rel);
-            let frame = image::open(&image_path)
-                .with_context(|| format!("{}: not a readable image", image_path.display()))?
-                .to_rgb8();
+            let frame = predictor.read_frame(&image_path)?;
             let depth_path = data.join(&s.depth);
             let truth = sensor::DepthMap::load_png_um(&depth_path)?;
             if truth.size_px != crop {

@@ -22,7 +22,8 @@ enum Command {
     Predict {
         #[arg(long)]
         bundle: PathBuf,
-        /// The sensor's RGB crop (PNG), as the dataset stores it.
+        /// A camera frame (PNG or JPEG): the camera's full frame, cut around the bundle's
+        /// calibrated optical centre, or the sensor's crop as the dataset stores it.
         #[arg(long)]
         image: PathBuf,
         #[arg(long)]
@@ -140,7 +141,7 @@ fn predict(
     no_tare: bool,
 ) -> Result<()> {
     let predictor = load(&bundle, &model::backend::default_device(), no_tare)?;
-    let frame = image::open(&image).with_context(|| format!("{}: not a readable image", image.display()))?.to_rgb8();
+    let frame = predictor.read_frame(&image)?;
     let start = Instant::now();
     let depth = if always {
         predictor.predict_network(std::slice::from_ref(&frame)).map(|mut v| v.remove(0))

@@ -16,23 +16,13 @@ pub enum InferError {
     File { path: PathBuf, message: String },
     #[error("frame is {width}x{height} px; this bundle's sensor crop is {crop}x{crop}")]
     FrameSize { width: u32, height: u32, crop: u32 },
+    #[error(transparent)]
+    Frame(#[from] sensor::frame::FrameError),
 }
 
 /// When a frame counts as untouched: fewer than `min_pixels` useful pixels differ from the
 /// reference image by more than `grey_levels` (mean over the channels).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ContactGate {
-    pub grey_levels: f32,
-    pub min_pixels: usize,
-}
-
-impl Default for ContactGate {
-    /// About 4 to 5 standard deviations of a simulated unit's noise at mid-grey, and a patch of
-    /// 200 pixels (0.08 % of the disk): noise alone almost never reaches both.
-    fn default() -> Self {
-        ContactGate { grey_levels: 15.0, min_pixels: 200 }
-    }
-}
+pub use sensor::frame::ContactGate;
 
 /// A loaded bundle, ready to turn frames into depth maps.
 pub struct Predictor {
@@ -62,12 +52,7 @@ impl Predictor {
         let reference = match &file.reference_image {
             Some(name) => {
                 let path = dir.join(name);
-                let img = image::open(&path)
-                    .map_err(|e| InferError::File {
-                        path: path.clone(),
-                        message: format!("not a readable image: {e}"),
-                    })?
-                    .to_rgb8();
+                let img = sensor::frame::read(&path)?;
                 let crop = file.sensor.crop_size_px;
                 if img.dimensions() != (crop, crop) {
                     return Err(InferError::File {
@@ -132,18 +117,19 @@ impl Predictor {
     /// without a reference image).
     pub fn has_contact(&self, frame: &RgbImage) -> bool {
         let Some(reference) = &self.reference else { return true };
-        let limit = self.gate.grey_levels * 3.0;
-        let mut changed = 0;
-        for ((p, q), &useful) in frame.pixels().zip(reference.pixels()).zip(&self.mask) {
-            let diff: f32 = (0..3).map(|c| (p.0[c] as f32 - q.0[c] as f32).abs()).sum();
-            if useful && diff > limit {
-                changed += 1;
-                if changed >= self.gate.min_pixels {
-                    return true;
-                }
-            }
+        self.gate.differs(frame, reference, &self.mask)
+    }
+
+    /// Reads a camera frame for this bundle's unit: PNG or JPEG, the camera's full frame (cut to
+    /// the sensor's crop around the calibrated optical centre) or the crop itself; a greyscale
+    /// frame, a frame of another size, or one whose colours are BGR-ordered against the unit's
+    /// reference frame is refused with the reason.
+    pub fn read_frame(&self, path: &Path) -> Result<RgbImage, InferError> {
+        let crop = sensor::frame::read_crop(path, &self.file.sensor)?;
+        if let Some(reference) = &self.reference {
+            sensor::frame::check_channel_order(path, &crop, reference, &self.mask)?;
         }
-        false
+        Ok(crop)
     }
 
     /// Depth (mm) on the crop's grid, zero outside the useful disk. A frame with no contact

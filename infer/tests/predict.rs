@@ -138,6 +138,63 @@ fn the_command_writes_depth_colour_and_a_point_cloud() {
     assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("bundle.json"));
 }
 
+/// The camera's full frame (PNG or JPEG) is cut around the bundle's optical centre and reads as
+/// its crop does; greyscale and BGR frames are refused with the reason, through the CLI too.
+#[test]
+fn full_camera_frames_and_jpeg_are_read_and_wrong_colours_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = bundle(&dir);
+    let p = Predictor::load(&dir, &model::backend::default_device()).unwrap();
+    let unit = renderer.unit().clone();
+    // The same press rendered on the whole camera frame.
+    let full = Renderer::new(&unit, dataset::PixelGrid::frame(&unit.sensor, 1));
+    let (depth, crop) = pressed(&renderer);
+    let (x0, y0) = unit.sensor.crop_origin_px();
+    let (n, w) = (unit.sensor.crop_size_px as usize, unit.sensor.frame_width_px as usize);
+    let mut frame_depth = vec![0f32; full.grid().len()];
+    for (y, row) in depth.chunks_exact(n).enumerate() {
+        let at = (y0 as usize + y) * w + x0 as usize;
+        frame_depth[at..at + n].copy_from_slice(row);
+    }
+    let frame = full.render(&frame_depth, None);
+    assert_eq!(frame.dimensions(), (800, 600));
+    let png = tmp.path().join("full.png");
+    frame.save(&png).unwrap();
+    let from_full = p.read_frame(&png).unwrap();
+    assert_eq!(from_full.dimensions(), (570, 570));
+    // Noise aside, the full frame's crop is the crop.
+    let noiseless = renderer.render(&depth, None);
+    assert_eq!(from_full, noiseless);
+    let jpeg = tmp.path().join("full.jpg");
+    std::fs::write(&jpeg, sensor::frame::encode_jpeg_rgb(&frame, 92)).unwrap();
+    let (a, b) =
+        (p.predict_network(&[noiseless]).unwrap(), p.predict_network(&[p.read_frame(&jpeg).unwrap()]).unwrap());
+    let mean_diff = a[0].depth_mm.iter().zip(&b[0].depth_mm).map(|(x, y)| (x - y).abs()).sum::<f32>() / (n * n) as f32;
+    assert!(mean_diff < 0.05, "a JPEG frame reads like its PNG: {mean_diff} mm apart on average");
+
+    let mut bgr = crop.clone();
+    bgr.pixels_mut().for_each(|px| px.0.swap(0, 2));
+    let swapped = tmp.path().join("bgr.png");
+    bgr.save(&swapped).unwrap();
+    let e = p.read_frame(&swapped).unwrap_err().to_string();
+    assert!(e.contains("bgr.png") && e.contains("BGR"), "{e}");
+    let grey = tmp.path().join("grey.png");
+    image::DynamicImage::ImageRgb8(crop).to_luma8().save(&grey).unwrap();
+    for (file, words) in [(&swapped, "BGR"), (&grey, "greyscale")] {
+        let r = Command::new(env!("CARGO_BIN_EXE_infer"))
+            .args(["predict", "--bundle", dir.to_str().unwrap(), "--image", file.to_str().unwrap()])
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success() && e.contains(words), "{e}");
+    }
+    let small = tmp.path().join("small.png");
+    image::RgbImage::from_pixel(640, 480, image::Rgb([10, 200, 30])).save(&small).unwrap();
+    let e = p.read_frame(&small).unwrap_err().to_string();
+    assert!(e.contains("640x480") && e.contains("800x600"), "{e}");
+}
+
 #[test]
 fn infer_depends_on_neither_autodiff_nor_training() {
     let r = Command::new(env!("CARGO"))

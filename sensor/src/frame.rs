@@ -1,8 +1,179 @@
-//! Camera frames: the RGB images a sensor's camera records, and their PNG encoding.
+//! Camera frames: decoding (PNG or JPEG, by content), the checks that keep a wrong frame from
+//! giving plausible but wrong depth, the crop around the optical centre, and PNG encoding.
+//!
+//! Every command that takes a frame reads it here, so they all accept the same frames and
+//! refuse the same ones with the same words:
+//! - 8-bit RGB as it is; 16-bit RGB scaled to 8 bits; an alpha channel dropped;
+//! - a greyscale frame (or an RGB one whose three channels are equal) refused: the sensor's
+//!   colours encode the direction of the surface's slope, so depth needs all three;
+//! - the camera's full frame cropped around the sensor's optical centre; the crop itself taken
+//!   as it is; any other size refused with both expected sizes;
+//! - against the unit's reference frame, a frame whose red and blue match the reference's blue
+//!   and red (a BGR frame, OpenCV's order) refused with that diagnosis.
+
+use std::path::{Path, PathBuf};
+
+use image::{DynamicImage, RgbImage};
+
+use crate::Sensor;
+
+/// Why a frame cannot be used; each names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum FrameError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: not a readable PNG or JPEG image: {message}")]
+    Decode { path: PathBuf, message: String },
+    #[error(
+        "{path}: the frame is greyscale ({what}); the sensor's colours encode the surface's slope, so depth \
+         needs the camera's RGB frame"
+    )]
+    Grey { path: PathBuf, what: String },
+    #[error(
+        "{path}: the frame is {width}x{height} px: neither the sensor's camera frame ({frame_width}x{frame_height}) \
+         nor its crop ({crop}x{crop})"
+    )]
+    Size { path: PathBuf, width: u32, height: u32, frame_width: u32, frame_height: u32, crop: u32 },
+    #[error(
+        "{path}: its red and blue channels match the unit's reference frame's blue and red ({swapped:.0} against \
+         {direct:.0} grey levels rms): the frame looks BGR-ordered (OpenCV's order); convert it to RGB"
+    )]
+    ChannelsSwapped { path: PathBuf, direct: f64, swapped: f64 },
+}
+
+/// Decodes a frame's bytes (PNG or JPEG, by content) to 8-bit RGB; `path` names it in errors.
+pub fn decode(path: &Path, bytes: &[u8]) -> Result<RgbImage, FrameError> {
+    let bad = |message: String| FrameError::Decode { path: path.to_path_buf(), message };
+    let format = image::guess_format(bytes).map_err(|e| bad(e.to_string()))?;
+    if !matches!(format, image::ImageFormat::Png | image::ImageFormat::Jpeg) {
+        return Err(bad(format!("{format:?} files are not read; save the frame as PNG or JPEG")));
+    }
+    let img = image::load_from_memory_with_format(bytes, format).map_err(|e| bad(e.to_string()))?;
+    let grey = |what: &str| FrameError::Grey { path: path.to_path_buf(), what: what.to_string() };
+    let rgb = match img {
+        DynamicImage::ImageLuma8(_) | DynamicImage::ImageLuma16(_) => return Err(grey("one channel")),
+        DynamicImage::ImageLumaA8(_) | DynamicImage::ImageLumaA16(_) => return Err(grey("one channel and alpha")),
+        DynamicImage::ImageRgb8(rgb) => rgb,
+        other => other.to_rgb8(),
+    };
+    if rgb.width() == 0 || rgb.height() == 0 {
+        return Err(bad("the image is empty".into()));
+    }
+    if rgb.pixels().all(|p| p.0[0] == p.0[1] && p.0[1] == p.0[2]) {
+        return Err(grey("its three channels are equal"));
+    }
+    Ok(rgb)
+}
+
+/// Reads and decodes a frame file.
+pub fn read(path: &Path) -> Result<RgbImage, FrameError> {
+    let bytes = std::fs::read(path).map_err(|source| FrameError::Io { path: path.to_path_buf(), source })?;
+    decode(path, &bytes)
+}
+
+/// The sensor's crop of `img`: cut around the optical centre from the camera's full frame, or
+/// `img` itself when it already is the crop.
+pub fn crop(path: &Path, img: RgbImage, sensor: &Sensor) -> Result<RgbImage, FrameError> {
+    let (w, h) = img.dimensions();
+    let n = sensor.crop_size_px;
+    if (w, h) == (n, n) {
+        return Ok(img);
+    }
+    if (w, h) == (sensor.frame_width_px, sensor.frame_height_px) {
+        let (x0, y0) = sensor.crop_origin_px();
+        // `Sensor::validate` keeps the crop inside the frame.
+        return Ok(image::imageops::crop_imm(&img, x0 as u32, y0 as u32, n, n).to_image());
+    }
+    Err(FrameError::Size {
+        path: path.to_path_buf(),
+        width: w,
+        height: h,
+        frame_width: sensor.frame_width_px,
+        frame_height: sensor.frame_height_px,
+        crop: n,
+    })
+}
+
+/// Reads a frame file and returns the sensor's crop of it.
+pub fn read_crop(path: &Path, sensor: &Sensor) -> Result<RgbImage, FrameError> {
+    crop(path, read(path)?, sensor)
+}
+
+/// Refuses a crop whose red and blue channels fit the reference crop's blue and red far better
+/// than its own: the spatial pattern of each LED's light (red from one side, blue from another)
+/// tells the channels apart even where their means are alike. Contact changes a part of the
+/// frame, not which side each colour lights, so a pressed frame passes.
+pub fn check_channel_order(
+    path: &Path,
+    crop: &RgbImage,
+    reference: &RgbImage,
+    mask: &[bool],
+) -> Result<(), FrameError> {
+    let (mut direct, mut swapped, mut n) = (0f64, 0f64, 0usize);
+    for ((p, q), &useful) in crop.pixels().zip(reference.pixels()).zip(mask).step_by(3) {
+        if !useful {
+            continue;
+        }
+        let [r, _, b] = p.0.map(f64::from);
+        let [rr, _, rb] = q.0.map(f64::from);
+        direct += (r - rr).powi(2) + (b - rb).powi(2);
+        swapped += (r - rb).powi(2) + (b - rr).powi(2);
+        n += 1;
+    }
+    let rms = |s: f64| (s / (2 * n.max(1)) as f64).sqrt();
+    let (direct, swapped) = (rms(direct), rms(swapped));
+    // Swapped channels fit at least twice as well, and the frame is well off its own reference
+    // (an RGB frame sits within noise and contact of it).
+    if swapped < 0.5 * direct && direct > 12.0 {
+        return Err(FrameError::ChannelsSwapped { path: path.to_path_buf(), direct, swapped });
+    }
+    Ok(())
+}
+
+/// When a frame counts as differing from the unit's reference frame: at least `min_pixels`
+/// useful pixels whose channels differ by more than `grey_levels` on average. Shared by the
+/// inference gate and the labelling checks.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContactGate {
+    pub grey_levels: f32,
+    pub min_pixels: usize,
+}
+
+impl Default for ContactGate {
+    /// About 4 to 5 standard deviations of a simulated unit's noise at mid-grey, and a patch of
+    /// 200 pixels (0.08 % of the disk): noise alone almost never reaches both.
+    fn default() -> Self {
+        ContactGate { grey_levels: 15.0, min_pixels: 200 }
+    }
+}
+
+impl ContactGate {
+    /// Useful pixels of `frame` that differ from `reference` by more than the gate's grey
+    /// levels, counted up to `min_pixels` (the count stops there: enough to decide).
+    pub fn changed_pixels(&self, frame: &RgbImage, reference: &RgbImage, mask: &[bool]) -> usize {
+        let limit = self.grey_levels * 3.0;
+        let mut changed = 0;
+        for ((p, q), &useful) in frame.pixels().zip(reference.pixels()).zip(mask) {
+            let diff: f32 = (0..3).map(|c| (p.0[c] as f32 - q.0[c] as f32).abs()).sum();
+            if useful && diff > limit {
+                changed += 1;
+                if changed >= self.min_pixels {
+                    break;
+                }
+            }
+        }
+        changed
+    }
+
+    /// Whether `frame` differs from `reference` by more than noise.
+    pub fn differs(&self, frame: &RgbImage, reference: &RgbImage, mask: &[bool]) -> bool {
+        self.changed_pixels(frame, reference, mask) >= self.min_pixels
+    }
+}
 
 /// Encodes an RGB image as PNG, with fast compression: camera frames are noisy and barely
 /// compress, and a generator or a frame loop writes many.
-pub fn encode_png_rgb(img: &image::RgbImage) -> Vec<u8> {
+pub fn encode_png_rgb(img: &RgbImage) -> Vec<u8> {
     use image::ImageEncoder;
     use image::codecs::png::{CompressionType, FilterType, PngEncoder};
     let mut out = Vec::with_capacity(img.len() / 2);
@@ -10,4 +181,75 @@ pub fn encode_png_rgb(img: &image::RgbImage) -> Vec<u8> {
         .write_image(img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgb8)
         .expect("in-memory PNG encode");
     out
+}
+
+/// Encodes an RGB image as JPEG at `quality` (1..=100), as USB cameras stream it (MJPEG).
+pub fn encode_jpeg_rgb(img: &RgbImage, quality: u8) -> Vec<u8> {
+    let mut out = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
+        .encode_image(img)
+        .expect("in-memory JPEG encode");
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn png(img: DynamicImage) -> Vec<u8> {
+        let mut out = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png).unwrap();
+        out
+    }
+
+    /// A colourful test pattern.
+    fn pattern(w: u32, h: u32) -> RgbImage {
+        RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 7 % 256) as u8, (y * 5 % 256) as u8, ((x + y) % 256) as u8]))
+    }
+
+    #[test]
+    fn rgb_16_bit_and_alpha_frames_are_read_as_8_bit_rgb() {
+        let p = Path::new("f.png");
+        let rgb = pattern(20, 10);
+        assert_eq!(decode(p, &png(DynamicImage::ImageRgb8(rgb.clone()))).unwrap(), rgb);
+        let rgba = DynamicImage::ImageRgb8(rgb.clone()).to_rgba8();
+        assert_eq!(decode(p, &png(DynamicImage::ImageRgba8(rgba))).unwrap(), rgb);
+        let wide = DynamicImage::ImageRgb8(rgb.clone()).to_rgb16();
+        assert_eq!(decode(p, &png(DynamicImage::ImageRgb16(wide))).unwrap(), rgb);
+        // JPEG: lossy, but RGB and close.
+        let jpeg = decode(Path::new("f.jpg"), &encode_jpeg_rgb(&rgb, 95)).unwrap();
+        assert_eq!(jpeg.dimensions(), (20, 10));
+    }
+
+    #[test]
+    fn greyscale_and_unreadable_frames_are_refused_with_the_reason() {
+        let p = Path::new("cam/f.png");
+        let grey = DynamicImage::ImageRgb8(pattern(8, 8)).to_luma8();
+        let e = decode(p, &png(DynamicImage::ImageLuma8(grey.clone()))).unwrap_err().to_string();
+        assert!(e.contains("cam/f.png") && e.contains("greyscale"), "{e}");
+        let as_rgb = DynamicImage::ImageLuma8(grey).to_rgb8();
+        let e = decode(p, &png(DynamicImage::ImageRgb8(as_rgb))).unwrap_err().to_string();
+        assert!(e.contains("greyscale") && e.contains("equal"), "{e}");
+        let e = decode(p, b"GIF89a not a frame").unwrap_err().to_string();
+        assert!(e.contains("cam/f.png") && e.contains("PNG or JPEG"), "{e}");
+        let e = decode(p, b"\x89PNG\r\n\x1a\nbroken").unwrap_err().to_string();
+        assert!(e.contains("not a readable"), "{e}");
+    }
+
+    #[test]
+    fn full_frames_are_cut_around_the_optical_centre_and_other_sizes_refused() {
+        let mut sensor = Sensor::default();
+        sensor.correspondence.centre_u_px = 402.3;
+        sensor.correspondence.centre_v_px = 296.6;
+        let frame = pattern(800, 600);
+        let (x0, y0) = sensor.crop_origin_px();
+        let crop = crop(Path::new("f.png"), frame.clone(), &sensor).unwrap();
+        assert_eq!(crop.dimensions(), (570, 570));
+        assert_eq!(crop.get_pixel(0, 0), frame.get_pixel(x0 as u32, y0 as u32));
+        assert_eq!(crop.get_pixel(569, 569), frame.get_pixel(x0 as u32 + 569, y0 as u32 + 569));
+        // The crop itself passes through.
+        assert_eq!(super::crop(Path::new("f.png"), crop.clone(), &sensor).unwrap(), crop);
+        let e = super::crop(Path::new("f.png"), pattern(640, 480), &sensor).unwrap_err().to_string();
+        assert!(e.contains("640x480") && e.contains("800x600") && e.contains("570x570"), "{e}");
+    }
 }

@@ -17,14 +17,15 @@ use sensor::{DepthMap, Sensor};
 
 /// A bad sample: the file and what is wrong with it.
 #[derive(Debug, thiserror::Error)]
-#[error("{path}: {message}")]
-pub struct DataError {
-    pub path: PathBuf,
-    pub message: String,
+pub enum DataError {
+    #[error("{path}: {message}")]
+    File { path: PathBuf, message: String },
+    #[error(transparent)]
+    Frame(#[from] sensor::frame::FrameError),
 }
 
 fn bad(path: &Path, message: impl std::fmt::Display) -> DataError {
-    DataError { path: path.to_path_buf(), message: message.to_string() }
+    DataError::File { path: path.to_path_buf(), message: message.to_string() }
 }
 
 /// One training pair, ready to batch.
@@ -109,7 +110,7 @@ impl DepthDataset {
         let record = &self.records[i];
         let crop = self.sensor.crop_size_px;
         let image_path = self.dir.join(record.image.as_ref().expect("checked at open"));
-        let img = image::open(&image_path).map_err(|e| bad(&image_path, format!("not a readable image: {e}")))?;
+        let img = sensor::frame::read(&image_path)?;
         if img.width() != crop || img.height() != crop {
             return Err(bad(
                 &image_path,
@@ -126,7 +127,7 @@ impl DepthDataset {
             return Err(bad(&depth_path, format!("depth {d} mm is outside 0..{} mm", self.sensor.max_depth_mm)));
         }
         let [h, w] = self.input_hw;
-        let mut image = model::bundle::encode_input(&img.to_rgb8(), self.input_hw);
+        let mut image = model::bundle::encode_input(&img, self.input_hw);
         if let Some(j) = jitter {
             let mut rng = SplitMix64::new(j.seed);
             for v in &mut image {

@@ -179,7 +179,7 @@ fn non_finite_steps_are_skipped_and_bad_samples_are_named() {
     assert!(fitted.state.bad_samples[0].contains(image.file_name().unwrap().to_str().unwrap()));
 
     // An image of the wrong size.
-    image::RgbImage::new(100, 100).save(&image).unwrap();
+    image::RgbImage::from_fn(100, 100, |x, y| image::Rgb([x as u8, y as u8, 90])).save(&image).unwrap();
     let e = fit(&tmp.path().join("size"), &config(&data, 1), tiny_start(), &device, false).err().unwrap();
     assert!(format!("{e:#}").contains("image is 100x100"), "{e:#}");
     // A depth map beyond the sensor's range (with a good image back in place).

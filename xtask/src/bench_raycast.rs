@@ -39,7 +39,7 @@ pub fn run(args: Args) -> Result<()> {
         .find(|t| t.number == 2)
         .context("the kit's test index has no trial 2")?
         .clone();
-    let pose = RigPose { b_axis_deg: 0.0, z_travel_mm: 1.0 };
+    let pose = RigPose { b_axis_deg: 0.0, z_travel_mm: 1.0, ..RigPose::default() };
     let scene = build_scene(&kit, &trial, pose)?;
     let parts = scene.part_refs();
     let triangles: usize = parts.iter().map(|p| p.triangles.len()).sum();

@@ -1,0 +1,311 @@
+//! Ground truth for a real sensor's capture session (`dataset label`): each logged frame is
+//! cropped around the calibrated optical centre and paired with the depth ray-cast for its
+//! logged pose through the sensor's correspondence, in the dataset format `train` reads.
+//!
+//! Deterministic (nothing is drawn), parallel, resumable like the generator, and strict: rows
+//! of the log that name a missing, unreadable, wrongly sized, greyscale or BGR frame, a trial
+//! not in the kit's index, a pose out of range or a frame twice are named with their line, and
+//! either stop the run or are skipped, counted and listed. It also reports the frames whose
+//! ground truth has no contact, and among them those whose image differs from the reference
+//! frame (a logging slip: the rig pressed, the log says it did not).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use formats::dataset::{
+    CaptureInfo, DATASET_FORMAT_VERSION, DepthStats, LabelParams, Manifest, SampleRecord, SplitSummary, sample_name,
+};
+use formats::fs::{write_atomic, write_atomic_unsynced};
+use formats::session::{CaptureLog, reference_frame};
+use formats::write_json;
+use image::RgbImage;
+use sensor::Sensor;
+use sensor::frame::{ContactGate, check_channel_order, encode_png_rgb, read_crop};
+use serde::{Deserialize, Serialize};
+
+use crate::generate::build_scene;
+use crate::kit::{Kit, Split, Trial};
+use crate::raycast::{RayBundle, RayCaster, Skipping};
+use crate::resumable;
+
+/// What a bad row of the log does to the run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum OnBadRow {
+    /// Stop at the first, naming its line and the problem.
+    Stop,
+    /// Leave it out; the report counts and lists them.
+    Skip,
+}
+
+/// Tilts beyond this (degrees) would turn the indicator's base towards the sensor.
+pub const MAX_TILT_DEG: f32 = 90.0;
+/// Raised further than this (mm), nothing of any kit reaches a fingertip sensor.
+pub const MIN_Z_TRAVEL_MM: f32 = -50.0;
+
+/// A labelling job.
+pub struct Labeller<'a> {
+    pub session: PathBuf,
+    pub out: PathBuf,
+    pub sensor: &'a Sensor,
+    pub kit: &'a Kit,
+    pub on_bad_row: OnBadRow,
+    pub gate: ContactGate,
+}
+
+/// What a finished labelling reports.
+pub struct LabelReport {
+    pub manifest: Manifest,
+    pub labelled: usize,
+    pub resumed: usize,
+    pub seconds: f64,
+    /// Rows left out, each `captures.csv: line N: problem`.
+    pub skipped: Vec<String>,
+    /// Frames whose ground truth has no contact (`line`, frame).
+    pub no_contact: Vec<(usize, String)>,
+    /// Of those, frames whose image differs from the reference frame (`line`, frame, pixels).
+    pub slips: Vec<(usize, String, usize)>,
+}
+
+/// One row ready to label: its id in the dataset, the trial and the row.
+struct Job<'k> {
+    id: u32,
+    trial: &'k Trial,
+    capture: formats::session::Capture,
+}
+
+impl Labeller<'_> {
+    /// Labels every row not labelled yet, then writes the manifest.
+    pub fn run(&self) -> Result<LabelReport> {
+        let start = Instant::now();
+        let log = CaptureLog::read(&self.session)?;
+        let mut skipped: Vec<(usize, String)> = Vec::new();
+        let mut refuse = |line: usize, e: String| -> Result<()> {
+            match self.on_bad_row {
+                OnBadRow::Stop => bail!("{e} (use --on-bad-row skip to leave such rows out)"),
+                OnBadRow::Skip => {
+                    skipped.push((line, e));
+                    Ok(())
+                }
+            }
+        };
+        for e in &log.bad {
+            refuse(e.line().unwrap_or(0), e.to_string())?;
+        }
+        let row_error = |line: usize, message: String| format!("{}: line {line}: {message}", log.path.display());
+        let mut jobs = Vec::new();
+        for (id, capture) in log.rows.iter().enumerate() {
+            let trial = self.kit.trials.iter().find(|t| t.split == capture.split && t.number == capture.trial);
+            let problem = match trial {
+                None => Some(format!(
+                    "trial {} is not in the kit's {} index ({} lists trials 1..={})",
+                    capture.trial,
+                    capture.split,
+                    self.kit.source,
+                    self.kit.trials_in(capture.split).iter().map(|t| t.number).max().unwrap_or(0)
+                )),
+                Some(_) => pose_problem(capture.pose, self.sensor),
+            };
+            match (problem, trial) {
+                (Some(p), _) => refuse(capture.line, row_error(capture.line, p))?,
+                (None, Some(trial)) => jobs.push(Job { id: id as u32, trial, capture: capture.clone() }),
+                (None, None) => unreachable!("a missing trial is a problem"),
+            }
+        }
+        let reference_path = reference_frame(&self.session).with_context(|| {
+            format!(
+                "{}: the session has no reference.png or reference.jpg (a frame with nothing touching the sensor)",
+                self.session.display()
+            )
+        })?;
+        let reference = read_crop(&reference_path, self.sensor)?;
+        let params = LabelParams {
+            session: self.session.display().to_string(),
+            kit: self.kit.source.clone(),
+            rows: log.rows.len() as u32,
+        };
+        let file =
+            LabelFile { format_version: DATASET_FORMAT_VERSION, sensor: self.sensor.clone(), params: params.clone() };
+        resumable::prepare(
+            &self.out,
+            &["samples", "depth", "images", "unit"],
+            LABEL_JSON,
+            &file,
+            "a labelled session",
+            "--out",
+        )?;
+        write_atomic(&self.out.join("unit/reference.png"), &encode_png_rgb(&reference))?;
+
+        let out = &self.out;
+        let done = resumable::finished(
+            "samples",
+            jobs.iter().map(|j| j.id),
+            |id| out.join(format!("samples/{}.json", sample_name(id))),
+            |r: &SampleRecord| std::iter::once(&r.depth).chain(&r.image).map(|f| out.join(f)).collect(),
+            |id, r: &SampleRecord| r.id == id,
+        )?;
+        let resumed = done.len();
+        let todo: Vec<&Job> = jobs.iter().filter(|j| !done.contains_key(&j.id)).collect();
+        let rays = RayBundle::new(self.sensor);
+        let mask = self.sensor.valid_mask();
+        let ids: Vec<u32> = (0..todo.len() as u32).collect();
+        let outcomes = resumable::make_all(&ids, "labelling", |k| {
+            let job = todo[k as usize];
+            Ok(self.label_row(job, &rays, &mask, &reference))
+        })?;
+        let mut records = done;
+        let mut labelled = 0;
+        for (job, outcome) in todo.iter().zip(outcomes) {
+            match outcome {
+                Ok(record) => {
+                    records.insert(record.id, record);
+                    labelled += 1;
+                }
+                Err(e) => refuse(job.capture.line, row_error(job.capture.line, format!("{e:#}")))?,
+            }
+        }
+        let samples: Vec<SampleRecord> = records.into_values().collect();
+        if samples.is_empty() {
+            bail!("{}: no row could be labelled", log.path.display());
+        }
+        let mut summary = BTreeMap::new();
+        for split in [Split::Train, Split::Test] {
+            summary.insert(split, SplitSummary::of(samples.iter().filter(|s| s.split == split)));
+        }
+        let (mut no_contact, mut slips) = (Vec::new(), Vec::new());
+        for s in samples.iter().filter(|s| s.stats.contact_fraction == 0.0) {
+            let capture = s.capture.as_ref().expect("labelled records carry their row");
+            no_contact.push((capture.line, capture.frame.clone()));
+            let image = read_crop(&out.join(s.image.as_ref().expect("labelled records have images")), self.sensor)?;
+            let changed = self.gate.changed_pixels(&image, &reference, &mask);
+            if changed >= self.gate.min_pixels {
+                slips.push((capture.line, capture.frame.clone(), changed));
+            }
+        }
+        let manifest = Manifest {
+            format_version: DATASET_FORMAT_VERSION,
+            sensor: self.sensor.clone(),
+            generator: None,
+            labelled: Some(params),
+            samples,
+            summary,
+        };
+        write_json(&out.join("manifest.json"), &manifest)?;
+        skipped.sort();
+        Ok(LabelReport {
+            manifest,
+            labelled,
+            resumed,
+            seconds: start.elapsed().as_secs_f64(),
+            skipped: skipped.into_iter().map(|(_, e)| e).collect(),
+            no_contact,
+            slips,
+        })
+    }
+
+    /// One row: its frame's crop checked and written, its depth cast and written, its record.
+    fn label_row(&self, job: &Job, rays: &RayBundle, mask: &[bool], reference: &RgbImage) -> Result<SampleRecord> {
+        let c = &job.capture;
+        let frame_path = self.session.join(&c.frame);
+        let crop = read_crop(&frame_path, self.sensor)?;
+        check_channel_order(&frame_path, &crop, reference, mask)?;
+        let scene = build_scene(self.kit, job.trial, c.pose)?;
+        let caster = RayCaster::new(&scene.part_refs(), self.sensor.radius_mm, Skipping::On);
+        let (depth, cast) = caster.depth_map(self.sensor, rays);
+        let name = sample_name(job.id);
+        let (depth_rel, image_rel) = (format!("depth/{name}.png"), format!("images/{name}.png"));
+        write_atomic_unsynced(&self.out.join(&depth_rel), &depth.to_png_um())?;
+        write_atomic_unsynced(&self.out.join(&image_rel), &encode_png_rgb(&crop))?;
+        let record = SampleRecord {
+            id: job.id,
+            split: job.trial.split,
+            trial: job.trial.number,
+            scene: scene.description,
+            depth: depth_rel,
+            image: Some(image_rel),
+            stats: DepthStats::of(&depth, mask),
+            cast,
+            capture: Some(CaptureInfo { frame: c.frame.clone(), line: c.line, extra: c.extra.clone() }),
+        };
+        let json = serde_json::to_vec_pretty(&record)?;
+        write_atomic_unsynced(&self.out.join(format!("samples/{name}.json")), &json)?;
+        Ok(record)
+    }
+}
+
+/// `label.json`: the sensor and where the rows came from, fixed for the life of the folder.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LabelFile {
+    pub format_version: u32,
+    pub sensor: Sensor,
+    pub params: LabelParams,
+}
+
+/// The parameters file of a labelled dataset.
+pub const LABEL_JSON: &str = "label.json";
+
+/// What is wrong with a logged pose, if anything.
+pub fn pose_problem(pose: formats::dataset::RigPose, sensor: &Sensor) -> Option<String> {
+    let tilt = |name: &str, v: f32| {
+        (v.abs() > MAX_TILT_DEG)
+            .then(|| format!("{name} = {v} degrees is beyond the +-{MAX_TILT_DEG} degree tilts of the rig"))
+    };
+    tilt("a_deg", pose.a_axis_deg).or_else(|| tilt("c_deg", pose.c_axis_deg)).or_else(|| {
+        let max = sensor.max_depth_mm as f32;
+        (!(MIN_Z_TRAVEL_MM..=max).contains(&pose.z_travel_mm)).then(|| {
+            format!(
+                "z_mm = {} is outside {MIN_Z_TRAVEL_MM}..{max} mm (deeper than the sensor's {max} mm depth range \
+                 would clip every contact pixel)",
+                pose.z_travel_mm
+            )
+        })
+    })
+}
+
+/// Human-readable lines of a finished labelling.
+pub fn report_lines(r: &LabelReport) -> Vec<String> {
+    let mut lines = vec![format!(
+        "{} samples ({} new, {} from an earlier run) in {:.1} s: {:.1} samples/s",
+        r.manifest.samples.len(),
+        r.labelled,
+        r.resumed,
+        r.seconds,
+        r.labelled as f64 / r.seconds.max(1e-9)
+    )];
+    for (split, s) in &r.manifest.summary {
+        lines.push(format!(
+            "  {:5}: {:6} samples, contact {:5.1}% of useful pixels, mean contact depth {:.3} mm",
+            split.name(),
+            s.samples,
+            100.0 * s.mean_contact_fraction,
+            s.mean_contact_depth_mm
+        ));
+    }
+    if !r.skipped.is_empty() {
+        lines.push(format!("{} rows skipped:", r.skipped.len()));
+        lines.extend(r.skipped.iter().map(|e| format!("  {e}")));
+    }
+    if !r.no_contact.is_empty() {
+        lines.push(format!(
+            "{} frames have no contact in their ground truth (z too small for their trial?): lines {}",
+            r.no_contact.len(),
+            list_lines(r.no_contact.iter().map(|(l, _)| *l))
+        ));
+    }
+    for (line, frame, px) in &r.slips {
+        lines.push(format!(
+            "warning: line {line} ({frame}): the ground truth has no contact but {px}+ pixels differ from the \
+             reference frame: a logging slip (pose or frame)?"
+        ));
+    }
+    lines
+}
+
+/// Line numbers for a report: the first twenty, then how many more.
+fn list_lines(lines: impl ExactSizeIterator<Item = usize>) -> String {
+    let n = lines.len();
+    let shown: Vec<String> = lines.take(20).map(|l| l.to_string()).collect();
+    if n > shown.len() { format!("{} and {} more", shown.join(", "), n - shown.len()) } else { shown.join(", ") }
+}
