@@ -21,6 +21,7 @@ use crate::render::Renderer;
 use crate::resumable;
 use crate::scene::{RigPose, Scene};
 use crate::unit::SensorUnit;
+use formats::output::OutputKind;
 
 /// Draws sample `id`'s trial and pose from its own random stream.
 pub fn draw_sample<'k>(kit: &'k Kit, params: &GeneratorParams, id: u32) -> (&'k Trial, RigPose) {
@@ -55,6 +56,30 @@ pub fn draw_sample<'k>(kit: &'k Kit, params: &GeneratorParams, id: u32) -> (&'k 
 /// The noise seed of sample `id`'s camera image.
 pub fn noise_seed(params: &GeneratorParams, id: u32) -> u64 {
     SplitMix64::for_item(params.seed ^ 0x1a6e, id as u64).next_u64()
+}
+
+/// The share of contact pixels that sit at the sensor's maximum depth (clipped) when up to
+/// `probes` of the kit's trials, spread over its index, are pressed to five travels spread over
+/// the z range `params` draws from: a figure to refuse or warn about travel that would clip
+/// most of the contact.
+pub fn clipped_fraction(kit: &Kit, params: &GeneratorParams, sensor: &Sensor, probes: usize) -> Result<f64> {
+    let rays = RayBundle::new(sensor);
+    let max = sensor.max_depth_mm as f32;
+    let step = (kit.trials.len() / probes.max(1)).max(1);
+    let (mut contact, mut clipped) = (0usize, 0usize);
+    let [z0, z1] = params.z_travel_mm;
+    for trial in kit.trials.iter().step_by(step).take(probes) {
+        for q in [0.1, 0.3, 0.5, 0.7, 0.9] {
+            let pose = RigPose { z_travel_mm: z0 + (z1 - z0) * q, ..RigPose::default() };
+            let scene = build_scene(kit, trial, pose)?;
+            let caster = RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On);
+            for &d in &caster.depth_map(sensor, &rays).0.depth_mm {
+                contact += (d > sensor::CONTACT_THRESHOLD_MM) as usize;
+                clipped += (d >= max - 1e-4) as usize;
+            }
+        }
+    }
+    Ok(clipped as f64 / contact.max(1) as f64)
 }
 
 /// Builds a trial's scene in the given pose.
@@ -206,7 +231,18 @@ impl Generator<'_> {
             sensor: self.sensor.clone(),
             params: self.params.clone(),
         };
-        resumable::prepare(&self.out, &subs, "generator.json", &file, "a dataset", "--out")?;
+        let kit = std::path::Path::new(&self.kit.source);
+        let inputs: Vec<&Path> = (self.kit.source != "procedural").then_some(kit).into_iter().collect();
+        resumable::prepare(
+            &self.out,
+            OutputKind::Dataset,
+            &inputs,
+            &subs,
+            "generator.json",
+            &file,
+            "a dataset",
+            "--out",
+        )?;
         if let Some(renderer) = self.renderer {
             write_unit_files(&self.out.join("unit"), renderer)?;
         }

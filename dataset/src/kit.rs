@@ -81,6 +81,13 @@ impl Kit {
     /// Loads the authors' kit: `stl/indicators/3Dindicator_verN.STL`, `stl/indenters/indent_verN.STL`,
     /// `Index_training.csv` and `Index_test.csv`. Only the meshes the index uses are loaded.
     pub fn load_dir(dir: &Path) -> Result<Kit, KitError> {
+        Self::load_dir_scaled(dir, 1.0)
+    }
+
+    /// [`Kit::load_dir`] with the files' coordinates multiplied by `scale_to_mm` (25.4 for a kit
+    /// exported in inches). Parts whose size fits no kit, or indicators whose dome does not
+    /// point along the file's Y axis, are refused with the file and the fix.
+    pub fn load_dir_scaled(dir: &Path, scale_to_mm: f32) -> Result<Kit, KitError> {
         if !dir.is_dir() {
             return Err(KitError::Layout { path: dir.into(), message: "kit folder not found".into() });
         }
@@ -94,12 +101,14 @@ impl Kit {
         indicator_ids.dedup();
         indenter_ids.sort_unstable();
         indenter_ids.dedup();
-        let opts = LoadOptions::default();
+        let opts = LoadOptions { scale_to_mm, ..LoadOptions::default() };
         let indicators = indicator_ids
             .par_iter()
             .map(|&id| {
                 let path = dir.join(format!("stl/indicators/3Dindicator_ver{id}.STL"));
                 let mesh = Mesh::load(&path, opts)?;
+                check_scale(&path, &mesh, INDICATOR_EXTENT_MM, "an indicator shell", scale_to_mm)?;
+                check_dome_up(&path, &mesh)?;
                 Indicator::new(format!("indicator-{id}"), mesh).map_err(|source| KitError::Scene { path, source })
             })
             .collect::<Result<Vec<_>, _>>()?;
@@ -107,7 +116,9 @@ impl Kit {
             .par_iter()
             .map(|&id| {
                 let path = dir.join(format!("stl/indenters/indent_ver{id}.STL"));
-                Ok(Indenter { name: format!("indenter-{id}"), mesh: Mesh::load(&path, opts)? })
+                let mesh = Mesh::load(&path, opts)?;
+                check_scale(&path, &mesh, INDENTER_EXTENT_MM, "an indenter", scale_to_mm)?;
+                Ok(Indenter { name: format!("indenter-{id}"), mesh })
             })
             .collect::<Result<Vec<_>, KitError>>()?;
         let trials = rows
@@ -137,6 +148,63 @@ impl Kit {
             .map(|&(i, j)| (self.indicators[i].name.clone(), self.indenters[j].name.clone()))
             .collect()
     }
+}
+
+/// How large (largest side, mm) a kit's parts are: the authors' shells are 53.5 mm across and
+/// their indenters 25-31 mm, for a 25 mm sensor; a 15 mm variant scales them down.
+const INDICATOR_EXTENT_MM: std::ops::RangeInclusive<f32> = 25.0..=150.0;
+const INDENTER_EXTENT_MM: std::ops::RangeInclusive<f32> = 3.0..=80.0;
+
+/// Refuses a part whose size fits no kit, suggesting the unit the file seems to be in.
+fn check_scale(
+    path: &Path,
+    mesh: &Mesh,
+    expected: std::ops::RangeInclusive<f32>,
+    what: &str,
+    scale_to_mm: f32,
+) -> Result<(), KitError> {
+    let (lo, hi) = mesh.bounds();
+    let extent = (hi - lo).max_element();
+    if expected.contains(&extent) {
+        return Ok(());
+    }
+    let units = [(25.4, "inches"), (10.0, "centimetres"), (1000.0, "metres"), (0.001, "micrometres")];
+    let hint = match units.iter().find(|(f, _)| expected.contains(&(extent * f))) {
+        Some((f, unit)) => {
+            format!("it looks like the file is in {unit}: load the kit with --kit-scale {}", f * scale_to_mm)
+        }
+        None => "check the file's units (millimetres expected)".to_string(),
+    };
+    Err(KitError::Layout {
+        path: path.into(),
+        message: format!(
+            "the mesh is {extent:.3} mm across, but {what} is {:.0}..{:.0} mm across; {hint}",
+            expected.start(),
+            expected.end()
+        ),
+    })
+}
+
+/// Refuses an indicator whose dome does not point up (the sensor frame's `+z`, the file's `+Y`):
+/// a file exported Z-up would press its side into the sensor.
+fn check_dome_up(path: &Path, mesh: &Mesh) -> Result<(), KitError> {
+    let n = mesh.vertices.len().max(1) as f32;
+    let c = mesh.vertices.iter().copied().sum::<glam::Vec3>() / n;
+    if c.z > 0.0 && c.z >= c.x.abs().max(c.y.abs()) {
+        return Ok(());
+    }
+    // The sensor frame's axes back in the file's (x, y, z) -> (x, -z, y).
+    let axis = [(c.x, "+X"), (-c.x, "-X"), (-c.y, "+Z"), (c.y, "-Z"), (-c.z, "-Y")]
+        .into_iter()
+        .max_by(|a, b| a.0.total_cmp(&b.0))
+        .map_or("?", |a| a.1);
+    Err(KitError::Layout {
+        path: path.into(),
+        message: format!(
+            "the indicator's dome points along the file's {axis} axis, not +Y: the kit's files are Y-up (the \
+             shell's axis along Y, its flat base at the bottom); export it Y-up"
+        ),
+    })
 }
 
 /// A parsed index row, with the kit's own part numbers.

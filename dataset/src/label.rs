@@ -128,8 +128,13 @@ impl Labeller<'_> {
         };
         let file =
             LabelFile { format_version: DATASET_FORMAT_VERSION, sensor: self.sensor.clone(), params: params.clone() };
+        let kit = std::path::Path::new(&self.kit.source);
+        let mut inputs = vec![self.session.as_path()];
+        inputs.extend((self.kit.source != "procedural").then_some(kit));
         resumable::prepare(
             &self.out,
+            formats::output::OutputKind::Dataset,
+            &inputs,
             &["samples", "depth", "images", "unit"],
             LABEL_JSON,
             &file,

@@ -47,6 +47,9 @@ struct LabelArgs {
     /// `procedural` for the embedded kit (simulated sessions).
     #[arg(long, default_value = "procedural")]
     kit: String,
+    /// Multiplies the kit's mesh coordinates to make millimetres (25.4 for files in inches).
+    #[arg(long, default_value_t = 1.0)]
+    kit_scale: f32,
     /// The unit's calibrated sensor description (from `dataset calibrate`).
     #[arg(long)]
     sensor: PathBuf,
@@ -125,6 +128,9 @@ struct GenerateArgs {
     /// embedded procedural kit.
     #[arg(long)]
     kit: Option<PathBuf>,
+    /// Multiplies the kit's mesh coordinates to make millimetres (25.4 for files in inches).
+    #[arg(long, default_value_t = 1.0)]
+    kit_scale: f32,
     /// Sensor description (JSON); default: the paper's sensor.
     #[arg(long)]
     sensor: Option<PathBuf>,
@@ -184,7 +190,8 @@ fn generate(args: GenerateArgs) -> Result<()> {
     sensor.validate()?;
     let renderer = unit.as_ref().map(Renderer::for_crop);
     let kit = match &args.kit {
-        Some(dir) => Kit::load_dir(dir).with_context(|| format!("loading the kit in {}", dir.display()))?,
+        Some(dir) => Kit::load_dir_scaled(dir, args.kit_scale)
+            .with_context(|| format!("loading the kit in {}", dir.display()))?,
         None => Kit::procedural(sensor.radius_mm as f32),
     };
     let b_axis_deg = match args.b_deg {
@@ -213,6 +220,22 @@ fn generate(args: GenerateArgs) -> Result<()> {
         a_axis_deg: args.a_deg,
         c_axis_deg: args.c_deg,
     };
+    // Travel that presses most contact past the sensor's depth range gives depth maps that say
+    // nothing there: refused with the figure, or warned about.
+    let clipped = dataset::generate::clipped_fraction(&kit, &params, &sensor, 4)?;
+    let figure = format!(
+        "with --z-max-mm {}, {:.0} % of the contact pixels of four of the kit's trials pressed over the z range \
+         sit at the sensor's {} mm maximum depth (clipped)",
+        args.z_max_mm,
+        100.0 * clipped,
+        sensor.max_depth_mm
+    );
+    if clipped > 0.5 {
+        bail!("{figure}: their depth is lost; lower --z-max-mm");
+    }
+    if clipped > 0.1 {
+        eprintln!("warning: {figure}");
+    }
     if let Some(dir) = &args.session {
         let unit = unit.as_ref().context("--session needs --unit")?;
         let writer = SessionWriter { out: dir.clone(), kit: &kit, unit, params, jpeg_quality: args.jpeg_quality };
@@ -242,7 +265,8 @@ fn label(args: LabelArgs) -> Result<()> {
     let sensor = Sensor::load_json(&args.sensor)?;
     let kit = match args.kit.as_str() {
         "procedural" => Kit::procedural(sensor.radius_mm as f32),
-        dir => Kit::load_dir(std::path::Path::new(dir)).with_context(|| format!("loading the kit in {dir}"))?,
+        dir => Kit::load_dir_scaled(std::path::Path::new(dir), args.kit_scale)
+            .with_context(|| format!("loading the kit in {dir}"))?,
     };
     let labeller = Labeller {
         session: args.session.clone(),
@@ -282,6 +306,8 @@ fn sawtooth(args: SawtoothArgs) -> Result<()> {
 }
 
 fn run_calibration(args: CalibrateArgs) -> Result<()> {
+    let inputs: Vec<&std::path::Path> = std::iter::once(args.image.as_path()).chain(args.truth.as_deref()).collect();
+    formats::output::check_file(&args.out, &inputs)?;
     let img = sensor::frame::read(&args.image)?;
     let truth = args.truth.as_deref().map(Sensor::load_json).transpose()?;
     if !(args.pitch_deg > 0.0 && args.pitch_deg * args.teeth as f64 <= 90.0) {

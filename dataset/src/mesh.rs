@@ -96,14 +96,18 @@ impl Mesh {
 
     /// Loads an STL or OBJ file (by extension), converts to the sensor frame and checks it.
     pub fn load(path: &Path, opts: LoadOptions) -> Result<Mesh, MeshError> {
-        let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
-        let soup = match ext.as_deref() {
-            Some("stl") => {
-                let bytes = std::fs::read(path).map_err(|e| MeshError::Io { path: path.into(), source: e })?;
-                parse_stl(path, &bytes)?
-            }
-            Some("obj") => load_obj(path)?,
-            _ => return Err(MeshError::Format { path: path.into() }),
+        // The format first: a wrong file is refused as such before it is read.
+        mesh_format(path)?;
+        let bytes = std::fs::read(path).map_err(|e| MeshError::Io { path: path.into(), source: e })?;
+        Mesh::parse(path, &bytes, opts)
+    }
+
+    /// [`load`](Self::load) on a file's bytes; `path` gives the format (by extension) and names
+    /// the file in errors.
+    pub fn parse(path: &Path, bytes: &[u8], opts: LoadOptions) -> Result<Mesh, MeshError> {
+        let soup = match mesh_format(path)? {
+            MeshFormat::Stl => parse_stl(path, bytes)?,
+            MeshFormat::Obj => parse_obj(path, bytes)?,
         };
         Mesh::from_checked_soup(path, soup, opts)
     }
@@ -161,6 +165,36 @@ impl Mesh {
         self.triangles[i].map(|v| self.vertices[v as usize])
     }
 
+    /// The mesh as Wavefront OBJ text (positions and 1-based triangle indices).
+    pub fn to_obj(&self) -> String {
+        use std::fmt::Write;
+        let mut out = String::with_capacity(self.vertices.len() * 40 + self.triangles.len() * 24);
+        for v in &self.vertices {
+            let _ = writeln!(out, "v {} {} {}", v.x, v.y, v.z);
+        }
+        for [a, b, c] in &self.triangles {
+            let _ = writeln!(out, "f {} {} {}", a + 1, b + 1, c + 1);
+        }
+        out
+    }
+
+    /// The mesh as ASCII STL text.
+    pub fn to_ascii_stl(&self) -> String {
+        use std::fmt::Write;
+        let mut out = String::from("solid mesh\n");
+        for i in 0..self.triangles.len() {
+            let [a, b, c] = self.triangle(i);
+            let n = (b - a).cross(c - a).normalize_or_zero();
+            let _ = writeln!(out, " facet normal {} {} {}\n  outer loop", n.x, n.y, n.z);
+            for p in [a, b, c] {
+                let _ = writeln!(out, "   vertex {} {} {}", p.x, p.y, p.z);
+            }
+            out.push_str("  endloop\n endfacet\n");
+        }
+        out.push_str("endsolid mesh\n");
+        out
+    }
+
     /// Writes a binary STL (used for tests and for exporting procedural kit parts).
     pub fn to_binary_stl(&self) -> Vec<u8> {
         let mut out = vec![0u8; 80];
@@ -177,6 +211,20 @@ impl Mesh {
             out.extend_from_slice(&[0, 0]);
         }
         out
+    }
+}
+
+enum MeshFormat {
+    Stl,
+    Obj,
+}
+
+/// A mesh file's format, by its extension (any case).
+fn mesh_format(path: &Path) -> Result<MeshFormat, MeshError> {
+    match path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).as_deref() {
+        Some("stl") => Ok(MeshFormat::Stl),
+        Some("obj") => Ok(MeshFormat::Obj),
+        _ => Err(MeshError::Format { path: path.into() }),
     }
 }
 
@@ -256,13 +304,13 @@ fn parse_ascii_stl(path: &Path, text: &str) -> Result<Vec<[Vec3; 3]>, MeshError>
     Ok(soup)
 }
 
-fn load_obj(path: &Path) -> Result<Vec<[Vec3; 3]>, MeshError> {
+/// Parses OBJ bytes (`path` names the file in errors): positions and faces, polygons
+/// triangulated; materials and texture coordinates are not read.
+pub fn parse_obj(path: &Path, bytes: &[u8]) -> Result<Vec<[Vec3; 3]>, MeshError> {
     let opts = tobj::LoadOptions { triangulate: true, single_index: false, ..Default::default() };
-    let (models, _) = tobj::load_obj(path, &opts).map_err(|e| MeshError::Parse {
-        path: path.into(),
-        line: 0,
-        message: format!("OBJ: {e}"),
-    })?;
+    let no_materials = |_: &Path| Err(tobj::LoadError::OpenFileFailed);
+    let (models, _) = tobj::load_obj_buf(&mut std::io::Cursor::new(bytes), &opts, no_materials)
+        .map_err(|e| MeshError::Parse { path: path.into(), line: 0, message: format!("OBJ: {e}") })?;
     let mut soup = Vec::new();
     for m in &models {
         let pos = &m.mesh.positions;
@@ -307,6 +355,19 @@ mod tests {
         let back = Mesh::from_soup(parse_stl(Path::new("x.stl"), &bytes).unwrap());
         assert_eq!(back, mesh);
         assert_eq!(back.vertices.len(), 8, "welding joins the cube's corners");
+    }
+
+    #[test]
+    fn obj_and_ascii_stl_round_trip() {
+        let mesh = Mesh::from_soup(cube_soup());
+        let obj = Mesh::from_soup(parse_obj(Path::new("c.obj"), mesh.to_obj().as_bytes()).unwrap());
+        assert_eq!(obj, mesh);
+        let stl = Mesh::from_soup(parse_stl(Path::new("c.stl"), mesh.to_ascii_stl().as_bytes()).unwrap());
+        assert_eq!(stl, mesh);
+        let opts = LoadOptions { up: UpAxis::Z, scale_to_mm: 1.0 };
+        assert_eq!(Mesh::parse(Path::new("c.OBJ"), mesh.to_obj().as_bytes(), opts).unwrap(), mesh);
+        let e = Mesh::parse(Path::new("c.ply"), b"ply", opts).unwrap_err().to_string();
+        assert!(e.contains("c.ply") && e.contains("expected .stl or .obj"), "{e}");
     }
 
     #[test]

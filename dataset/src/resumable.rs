@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use formats::fs::{jpeg_is_complete, png_is_complete, remove_temporaries};
+use formats::output::OutputKind;
 use formats::{Progress, read_json, write_json};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -19,14 +20,20 @@ use serde::de::DeserializeOwned;
 /// Creates `dir`'s sub-folders (removing temporaries a killed run left in them), and writes the
 /// parameters file `params_name`, or checks that the one there says the same; `what` and `flag`
 /// name the folder's kind and the option that chose it in the refusal.
+/// The folder is claimed first (`formats::output`): new, empty or of this `kind`, and none of
+/// `inputs`.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn prepare<P: Serialize + DeserializeOwned>(
     dir: &Path,
+    kind: OutputKind,
+    inputs: &[&Path],
     subs: &[&str],
     params_name: &str,
     params: &P,
     what: &str,
     flag: &str,
 ) -> Result<()> {
+    formats::output::claim_dir(dir, kind, inputs)?;
     for sub in std::iter::once("").chain(subs.iter().copied()) {
         let d = dir.join(sub);
         std::fs::create_dir_all(&d).with_context(|| format!("{}: cannot create folder", d.display()))?;

@@ -68,8 +68,12 @@ impl SessionWriter<'_> {
         let settings =
             SessionSettings { params: self.params.clone(), unit: self.unit.clone(), jpeg_quality: self.jpeg_quality };
         let rows_dir = format!("{SIMULATION_DIR}/rows");
+        let kit = std::path::Path::new(&self.kit.source);
+        let inputs: Vec<&std::path::Path> = (self.kit.source != "procedural").then_some(kit).into_iter().collect();
         resumable::prepare(
             &self.out,
+            formats::output::OutputKind::Session,
+            &inputs,
             &["frames", SIMULATION_DIR, &rows_dir],
             &format!("{SIMULATION_DIR}/generator.json"),
             &settings,

@@ -23,7 +23,7 @@ use std::path::Path;
 use sensor::{CONTACT_THRESHOLD_MM, DepthMap, Sensor};
 use serde::{Deserialize, Serialize};
 
-use crate::json::{FormatError, read_json};
+use crate::json::FormatError;
 
 pub const DATASET_FORMAT_VERSION: u32 = 1;
 
@@ -355,35 +355,67 @@ pub struct Manifest {
 }
 
 impl Manifest {
-    /// Loads `DIR/manifest.json`, checking its version and that the sample files exist.
+    /// Loads `DIR/manifest.json`, checking its version and its sensor. Sample files are not
+    /// checked here: a reader meets a missing one as that sample's error, which `--on-bad-data
+    /// skip` can leave out ([`Manifest::missing_files`] lists them beforehand).
     pub fn load(dir: &Path) -> Result<Manifest, FormatError> {
         let path = dir.join("manifest.json");
-        let manifest: Manifest = read_json(&path)?;
+        let bytes = std::fs::read(&path).map_err(|source| FormatError::Io { path: path.clone(), source })?;
+        Self::parse(&path, &bytes)
+    }
+
+    /// Parses and checks a `manifest.json`'s bytes (`path` names it in errors): its version, its
+    /// sensor, and that every file a record names lies inside the dataset folder.
+    pub fn parse(path: &Path, bytes: &[u8]) -> Result<Manifest, FormatError> {
+        let manifest: Manifest = serde_json::from_slice(bytes).map_err(|e| FormatError::invalid(path, e))?;
         if manifest.format_version > DATASET_FORMAT_VERSION {
             return Err(FormatError::invalid(
-                &path,
+                path,
                 format!(
                     "dataset format {} is newer than this program understands ({DATASET_FORMAT_VERSION})",
                     manifest.format_version
                 ),
             ));
         }
-        manifest.sensor.validate().map_err(|e| FormatError::invalid(&path, e))?;
-        for s in &manifest.samples {
-            for file in std::iter::once(&s.depth).chain(&s.image) {
-                let file = dir.join(file);
-                if !file.is_file() {
-                    return Err(FormatError::invalid(&file, format!("sample {} is listed but missing", s.id)));
+        manifest.sensor.validate().map_err(|e| FormatError::invalid(path, e))?;
+        for record in &manifest.samples {
+            for file in std::iter::once(&record.depth).chain(&record.image) {
+                if !is_inside(file) {
+                    return Err(FormatError::invalid(
+                        path,
+                        format!(
+                            "sample {} names the file {file:?}, which is not a path inside the dataset folder",
+                            record.id
+                        ),
+                    ));
                 }
             }
         }
         Ok(manifest)
     }
 
+    /// The files the records list that are not in `dir`.
+    pub fn missing_files(&self, dir: &Path) -> Vec<std::path::PathBuf> {
+        self.samples
+            .iter()
+            .flat_map(|s| std::iter::once(&s.depth).chain(&s.image))
+            .map(|f| dir.join(f))
+            .filter(|f| !f.is_file())
+            .collect()
+    }
+
     /// The records of one split, or of all of them.
     pub fn split(&self, split: Option<Split>) -> impl Iterator<Item = &SampleRecord> {
         self.samples.iter().filter(move |s| split.is_none_or(|want| s.split == want))
     }
+}
+
+/// Whether `name` is a relative path that stays inside its folder (no root, no `..`, not empty):
+/// a dataset is a self-contained folder that can be moved as a whole.
+pub fn is_inside(name: &str) -> bool {
+    use std::path::Component;
+    let path = Path::new(name);
+    !name.is_empty() && path.components().all(|c| matches!(c, Component::Normal(_) | Component::CurDir))
 }
 
 /// A sample's file name stem: its id, six digits.
@@ -394,6 +426,16 @@ pub fn sample_name(id: u32) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn record_files_must_stay_inside_the_dataset() {
+        for good in ["000001.png", "depth/000001.png", "./a.png"] {
+            assert!(is_inside(good), "{good}");
+        }
+        for bad in ["", "/etc/passwd", "../x.png", "depth/../../x.png"] {
+            assert!(!is_inside(bad), "{bad}");
+        }
+    }
 
     #[test]
     fn poses_round_trip_and_old_records_read_as_untilted() {

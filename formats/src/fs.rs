@@ -111,6 +111,32 @@ pub fn jpeg_is_complete(path: &Path) -> bool {
     matches!(tail, Ok(Some([0xff, 0xd9])))
 }
 
+/// Writes several files so that either all of them are replaced or none: each is written to a
+/// temporary file first, and only when every one is written are they renamed into place.
+pub fn write_files_atomic(files: &[(&Path, &[u8])]) -> Result<(), FsError> {
+    let mut written: Vec<(PathBuf, &Path)> = Vec::new();
+    for (path, bytes) in files {
+        let tmp = temp_path(path);
+        let result = (|| {
+            let mut f = std::fs::File::create(&tmp)?;
+            f.write_all(bytes)?;
+            f.sync_all()
+        })();
+        if let Err(e) = result {
+            let _ = std::fs::remove_file(&tmp);
+            for (t, _) in &written {
+                let _ = std::fs::remove_file(t);
+            }
+            return Err(FsError::new(path, e));
+        }
+        written.push((tmp, path));
+    }
+    for (tmp, path) in &written {
+        std::fs::rename(tmp, path).map_err(|e| FsError::new(path, e))?;
+    }
+    Ok(())
+}
+
 /// Writes a whole folder atomically: `fill` writes into a temporary folder beside `dir`, which
 /// then replaces `dir` (the old one is renamed away first and removed last). A failed `fill`
 /// leaves `dir` as it was and removes the temporary folder.
@@ -171,6 +197,19 @@ mod tests {
         assert!(err.to_string().contains("a.txt"));
         assert_eq!(std::fs::read(&path).unwrap(), b"kept");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn several_files_are_written_all_or_none() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+        write_files_atomic(&[(&a, b"1"), (&b, b"2")]).unwrap();
+        assert_eq!((std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap()), (b"1".to_vec(), b"2".to_vec()));
+        // The second cannot be written (its folder is missing): the first keeps its old content.
+        let bad = dir.path().join("missing/c");
+        assert!(write_files_atomic(&[(&a, b"new"), (&bad, b"3")]).is_err());
+        assert_eq!(std::fs::read(&a).unwrap(), b"1");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2, "no temporary file is left");
     }
 
     #[test]

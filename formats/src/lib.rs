@@ -5,6 +5,8 @@
 //! - [`training`]: what a bundle records of its training;
 //! - [`session`]: a capture session's log (`captures.csv`) as a lab writes it;
 //! - [`fs`]: atomic file and folder writes (a reader never sees half a file);
+//! - [`output`]: which folders and files a command may write (never its inputs, never what
+//!   another tool left);
 //! - [`json`]: JSON files that name themselves in every error;
 //! - [`rng`]: the seeded random streams that fix a dataset's content and a run's data order;
 //! - [`progress`]: what long jobs show while they run.
@@ -14,6 +16,7 @@
 pub mod dataset;
 pub mod fs;
 pub mod json;
+pub mod output;
 pub mod progress;
 pub mod rng;
 pub mod session;

@@ -111,16 +111,17 @@ impl CaptureLog {
         }
         let mut log = CaptureLog { path: path.to_path_buf(), rows: Vec::new(), bad: Vec::new() };
         let mut seen = BTreeMap::<String, usize>::new();
+        let mut lines = LineCounter { bytes, at: 0, line: 1 };
         for record in reader.records() {
             let record = match record {
                 Ok(r) => r,
                 Err(e) => {
-                    let line = e.position().map_or(0, |p| p.line() as usize);
+                    let line = e.position().map_or(0, |p| lines.line_at(p.byte() as usize));
                     log.bad.push(SessionError::Row { path: path.to_path_buf(), line, message: e.to_string() });
                     continue;
                 }
             };
-            let line = record.position().map_or(0, |p| p.line() as usize);
+            let line = record.position().map_or(0, |p| lines.line_at(p.byte() as usize));
             if record.iter().all(str::is_empty) {
                 continue;
             }
@@ -194,6 +195,41 @@ impl CaptureLog {
     }
 }
 
+/// Line numbers of byte offsets, counted forward as records are read. The CSV reader's own
+/// count is one short after a CRLF line end (a record then starts at the `\n` that the `\r`
+/// left) and misses lone `\r` line ends, so the record's first byte that is not a line end is
+/// what counts, and every kind of line end counts once.
+struct LineCounter<'a> {
+    bytes: &'a [u8],
+    at: usize,
+    line: usize,
+}
+
+impl LineCounter<'_> {
+    fn line_at(&mut self, offset: usize) -> usize {
+        let mut offset = offset.min(self.bytes.len());
+        while offset < self.bytes.len() && matches!(self.bytes[offset], b'\r' | b'\n') {
+            offset += 1;
+        }
+        if offset < self.at {
+            // Offsets only move forward; an error may name an earlier one.
+            self.at = 0;
+            self.line = 1;
+        }
+        // A line ends at `\n`, `\r\n` or a lone `\r`, as the CSV reader ends records.
+        let ends = (self.at..offset)
+            .filter(|&k| match self.bytes[k] {
+                b'\n' => true,
+                b'\r' => self.bytes.get(k + 1) != Some(&b'\n'),
+                _ => false,
+            })
+            .count();
+        self.line += ends;
+        self.at = offset;
+        self.line
+    }
+}
+
 /// The session's reference frame (`reference.png`, or `.jpg`/`.jpeg`), if it has one.
 pub fn reference_frame(session: &Path) -> Option<PathBuf> {
     ["reference.png", "reference.jpg", "reference.jpeg", "reference.PNG", "reference.JPG"]
@@ -249,5 +285,15 @@ mod tests {
             assert!(m.contains("captures.csv") && m.contains(want), "{m}");
         }
         assert!(parse("frame,split,trial,a_deg,b_deg,c_deg,z_mm\n").unwrap_err().to_string().contains("no frames"));
+    }
+
+    #[test]
+    fn lines_are_counted_alike_with_crlf_and_blank_lines() {
+        let lf = "frame,split,trial,a_deg,b_deg,c_deg,z_mm\na.png,train,1,0,0,0,1\n\nb.png,train,x,0,0,0,1\nc.png,test,1,0,0,0,1\n";
+        for text in [lf.to_string(), lf.replace('\n', "\r\n"), lf.replace('\n', "\r")] {
+            let log = parse(&text).unwrap();
+            assert_eq!(log.rows.iter().map(|r| r.line).collect::<Vec<_>>(), [2, 5], "{text:?}");
+            assert_eq!(log.bad.iter().map(|e| e.line().unwrap()).collect::<Vec<_>>(), [4], "{text:?}");
+        }
     }
 }

@@ -1,6 +1,5 @@
 //! Point clouds in the sensor frame (millimetres) and their PLY files.
 
-use std::io::Write;
 use std::path::Path;
 
 use sensor::{DepthMap, PixelRay, Sensor};
@@ -36,30 +35,38 @@ impl PointCloud {
     }
 }
 
-/// Writes a binary little-endian PLY of the points (Open3D and MeshLab read it), atomically.
-pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<(), formats::FsError> {
-    formats::fs::write_atomic_with(path, |f| {
-        let mut out = std::io::BufWriter::new(f);
-        write!(
-            out,
-            "ply\nformat binary_little_endian 1.0\ncomment DenseTact surface, sensor frame, millimetres\n\
-             element vertex {}\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
-            cloud.points_mm.len()
-        )?;
-        for p in &cloud.points_mm {
-            for v in p {
-                out.write_all(&v.to_le_bytes())?;
-            }
+/// A binary little-endian PLY of the points (Open3D and MeshLab read it).
+pub fn ply_bytes(cloud: &PointCloud) -> Vec<u8> {
+    let mut out = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment DenseTact surface, sensor frame, millimetres\n\
+         element vertex {}\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
+        cloud.points_mm.len()
+    )
+    .into_bytes();
+    out.reserve(cloud.points_mm.len() * 12);
+    for p in &cloud.points_mm {
+        for v in p {
+            out.extend_from_slice(&v.to_le_bytes());
         }
-        out.flush()
-    })
+    }
+    out
+}
+
+/// Writes [`ply_bytes`] atomically.
+pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<(), formats::FsError> {
+    formats::fs::write_atomic(path, &ply_bytes(cloud))
 }
 
 /// Reads a PLY that [`write_ply`] wrote (binary little-endian, float x, y, z per vertex),
 /// checking that the file's size matches its header.
 pub fn read_ply(path: &Path) -> Result<PointCloud, sensor::SensorError> {
-    let bad = |message: &str| sensor::SensorError::InFile { path: path.to_path_buf(), message: message.into() };
     let bytes = std::fs::read(path).map_err(|e| sensor::SensorError::io(path, e))?;
+    parse_ply(path, &bytes)
+}
+
+/// Parses [`ply_bytes`]' format; `path` names the file in errors. Points must be finite.
+pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<PointCloud, sensor::SensorError> {
+    let bad = |message: &str| sensor::SensorError::InFile { path: path.to_path_buf(), message: message.into() };
     const END: &[u8] = b"end_header\n";
     let header_end = bytes.windows(END.len()).position(|w| w == END).ok_or_else(|| bad("no PLY header"))? + END.len();
     let header = std::str::from_utf8(&bytes[..header_end]).map_err(|_| bad("PLY header is not text"))?;
@@ -72,13 +79,16 @@ pub fn read_ply(path: &Path) -> Result<PointCloud, sensor::SensorError> {
         .and_then(|v| v.trim().parse().ok())
         .ok_or_else(|| bad("PLY header has no vertex count"))?;
     let body = &bytes[header_end..];
-    if body.len() != n * 12 {
+    if n.checked_mul(12) != Some(body.len()) {
         return Err(bad(&format!("{} bytes of vertices, the header says {n} vertices of 12 bytes", body.len())));
     }
     let points_mm = body
         .chunks_exact(12)
         .map(|v| std::array::from_fn(|k| f32::from_le_bytes(v[4 * k..4 * k + 4].try_into().expect("4 bytes"))))
-        .collect();
+        .collect::<Vec<[f32; 3]>>();
+    if let Some(k) = points_mm.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+        return Err(bad(&format!("vertex {k} is not finite: {:?}", points_mm[k])));
+    }
     Ok(PointCloud { points_mm })
 }
 

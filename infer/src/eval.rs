@@ -7,6 +7,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use formats::dataset::{Manifest, SampleRecord, Split};
 use formats::fs::write_atomic;
+use formats::output::OutputKind;
 use serde::Serialize;
 
 use crate::Predictor;
@@ -155,9 +156,9 @@ pub fn evaluate_dataset(
     splits: &[Split],
     out: &Path,
 ) -> Result<BTreeMap<String, SplitStats>> {
+    formats::output::check_dir(out, OutputKind::Evaluation, &[data, &predictor.dir])?;
     let manifest = Manifest::load(data)?;
     let crop = predictor.file.sensor.crop_size_px;
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
     let mut stats = BTreeMap::new();
     let mut rows = Vec::new();
     let mut groups = Vec::new();
@@ -165,6 +166,9 @@ pub fn evaluate_dataset(
         let name = split.name();
         let (mut errors, mut skipped) = (Vec::new(), 0);
         let chosen: Vec<&SampleRecord> = manifest.split(Some(split)).collect();
+        if chosen.is_empty() {
+            anyhow::bail!("{}: the dataset has no {name} samples to evaluate", data.join("manifest.json").display());
+        }
         for (k, s) in chosen.iter().enumerate() {
             let id = s.id;
             let image_rel = s.image.as_ref().with_context(|| format!("sample {id} has no image"))?;
@@ -197,7 +201,7 @@ pub fn evaluate_dataset(
         stats.insert(name.to_string(), s);
         rows.extend(errors);
     }
-    write_atomic(&out.join("stats.json"), serde_json::to_string_pretty(&stats)?.as_bytes())?;
+    let stats_json = serde_json::to_string_pretty(&stats)?;
     let mut csv = String::from("id,split,l1_mm,l2_mm,contact_l1_mm,zero_l1_mm,zero_contact_l1_mm,contact_pixels\n");
     for e in &rows {
         csv += &format!(
@@ -205,9 +209,16 @@ pub fn evaluate_dataset(
             e.id, e.split, e.l1_mm, e.l2_mm, e.contact_l1_mm, e.zero_l1_mm, e.zero_contact_l1_mm, e.contact_pixels
         );
     }
-    write_atomic(&out.join("errors.csv"), csv.as_bytes())?;
     let groups: Vec<(&str, Vec<f64>)> = groups.into_iter().collect();
-    write_atomic(&out.join("violin.svg"), crate::plot::violin_svg(&groups)?.as_bytes())?;
+    let violin = crate::plot::violin_svg(&groups)?;
+    // The three files replace a previous evaluation together, or not at all.
+    formats::fs::write_dir_atomic(out, |tmp| -> Result<()> {
+        write_atomic(&tmp.join("stats.json"), stats_json.as_bytes())?;
+        write_atomic(&tmp.join("errors.csv"), csv.as_bytes())?;
+        write_atomic(&tmp.join("violin.svg"), violin.as_bytes())?;
+        formats::output::mark(tmp, OutputKind::Evaluation)?;
+        Ok(())
+    })?;
     Ok(stats)
 }
 

@@ -6,8 +6,9 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use infer::Predictor;
+use infer::cloud::ply_bytes;
 use infer::eval::CONTACT_THRESHOLD_MM;
-use infer::{Predictor, write_ply};
 
 #[derive(Parser)]
 #[command(name = "infer", version, about = "DenseTact depth, contact and point clouds from camera frames")]
@@ -140,6 +141,15 @@ fn predict(
     always: bool,
     no_tare: bool,
 ) -> Result<()> {
+    // Outputs are checked before any work: none may be an input, none named twice.
+    let outputs: Vec<&std::path::Path> =
+        [&depth_out, &colour_out, &ply].into_iter().flatten().map(|p| p.as_path()).collect();
+    let inputs =
+        [image.as_path(), &bundle.join(model::bundle::BUNDLE_JSON), &bundle.join(model::bundle::WEIGHTS_BURNPACK)];
+    for out in &outputs {
+        formats::output::check_file(out, &inputs)?;
+    }
+    formats::output::check_distinct(&outputs)?;
     let predictor = load(&bundle, &model::backend::default_device(), no_tare)?;
     let frame = predictor.read_frame(&image)?;
     let start = Instant::now();
@@ -158,24 +168,32 @@ fn predict(
         100.0 * pressed as f64 / predictor.mask.iter().filter(|&&m| m).count().max(1) as f64,
         depth.max_mm()
     );
-    if let Some(path) = depth_out {
-        formats::fs::write_atomic(&path, &depth.to_png_um())?;
-        println!("wrote {}", path.display());
+    // Every output is made first, then all are written together: a failure leaves none.
+    let mut files: Vec<(&std::path::Path, Vec<u8>)> = Vec::new();
+    if let Some(path) = &depth_out {
+        files.push((path, depth.to_png_um()));
     }
-    if let Some(path) = colour_out {
+    if let Some(path) = &colour_out {
         let img = infer::colour::false_colour(&depth, &predictor.mask, predictor.file.sensor.max_depth_mm as f32);
-        formats::fs::write_atomic(&path, &sensor::frame::encode_png_rgb(&img))?;
+        files.push((path, sensor::frame::encode_png_rgb(&img)));
+    }
+    let cloud = ply.as_ref().map(|_| predictor.point_cloud(&depth, CONTACT_THRESHOLD_MM));
+    if let (Some(path), Some(cloud)) = (&ply, &cloud) {
+        files.push((path, ply_bytes(cloud)));
+    }
+    let refs: Vec<(&std::path::Path, &[u8])> = files.iter().map(|(p, b)| (*p, b.as_slice())).collect();
+    formats::fs::write_files_atomic(&refs)?;
+    for (path, _) in &files {
         println!("wrote {}", path.display());
     }
-    if let Some(path) = ply {
-        let cloud = predictor.point_cloud(&depth, CONTACT_THRESHOLD_MM);
-        write_ply(&path, &cloud)?;
-        println!("wrote {} ({} points)", path.display(), cloud.points_mm.len());
+    if let Some(cloud) = cloud {
+        println!("the point cloud has {} points", cloud.points_mm.len());
     }
     Ok(())
 }
 
 fn main() -> ExitCode {
+    model::backend::cpu_unless_asked();
     sensor::alloc::keep_freed_memory();
     let result = match Cli::parse().command {
         Command::Predict { bundle, image, depth_out, colour_out, ply, always, no_tare } => {

@@ -26,6 +26,8 @@ pub use sensor::frame::ContactGate;
 
 /// A loaded bundle, ready to turn frames into depth maps.
 pub struct Predictor {
+    /// The bundle's folder.
+    pub dir: PathBuf,
     net: DenseDepth,
     pub file: BundleFile,
     device: Device,
@@ -74,6 +76,7 @@ impl Predictor {
         let trained = sensor::resample::covered_mask(&mask, file.sensor.crop_size_px as usize, out_hw);
         let border_fill = sensor::resample::FillPlan::new(&trained, out_hw);
         let mut predictor = Predictor {
+            dir: dir.to_path_buf(),
             net: net.folded(),
             file,
             device: device.clone(),

@@ -26,10 +26,41 @@ fn bundle(dir: &Path) -> Renderer {
         sensor: unit.sensor.clone(),
         reference_image: None,
         training: None,
+        weights_sha256: Default::default(),
     };
     let reference = sensor::frame::encode_png_rgb(&renderer.reference_image(1));
-    write_bundle(dir, &net, &file, Some(&reference)).unwrap();
+    write_bundle(dir, &net, &file, Some(&reference), &[]).unwrap();
     renderer
+}
+
+/// `count` samples of the procedural kit with `renderer`'s unit's images in `data`.
+fn dataset_of(renderer: &Renderer, data: &Path, count: u32, test_fraction: f32) {
+    let kit = dataset::Kit::procedural(25.0);
+    let params = formats::dataset::GeneratorParams {
+        unit: Some(3),
+        test_fraction,
+        ..formats::dataset::GeneratorParams::new(4, count, &kit.source)
+    };
+    let unit = renderer.unit().clone();
+    dataset::generate::Generator {
+        out: data.to_path_buf(),
+        sensor: &unit.sensor,
+        kit: &kit,
+        params,
+        skipping: dataset::Skipping::On,
+        renderer: Some(renderer),
+    }
+    .run()
+    .unwrap();
+}
+
+/// `infer eval` of `bundle` on `data`'s `split` into `out`.
+fn eval(bundle: &Path, data: &Path, split: &str, out: &Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_infer"))
+        .args(["eval", "--bundle", bundle.to_str().unwrap(), "--data", data.to_str().unwrap()])
+        .args(["--split", split, "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap()
 }
 
 /// A frame with a 1 mm dent in the middle.
@@ -216,29 +247,9 @@ fn eval_writes_statistics_per_split_errors_and_a_violin_plot() {
     let dir = tmp.path().join("bundle");
     let renderer = bundle(&dir);
     let data = tmp.path().join("data");
-    let kit = dataset::Kit::procedural(25.0);
-    let params = formats::dataset::GeneratorParams {
-        unit: Some(3),
-        test_fraction: 0.3,
-        ..formats::dataset::GeneratorParams::new(4, 10, &kit.source)
-    };
-    let unit = renderer.unit().clone();
-    dataset::generate::Generator {
-        out: data.clone(),
-        sensor: &unit.sensor,
-        kit: &kit,
-        params,
-        skipping: dataset::Skipping::On,
-        renderer: Some(&renderer),
-    }
-    .run()
-    .unwrap();
+    dataset_of(&renderer, &data, 10, 0.3);
     let out = tmp.path().join("eval");
-    let r = Command::new(env!("CARGO_BIN_EXE_infer"))
-        .args(["eval", "--bundle", dir.to_str().unwrap(), "--data", data.to_str().unwrap()])
-        .args(["--split", "all", "--out", out.to_str().unwrap()])
-        .output()
-        .unwrap();
+    let r = eval(&dir, &data, "all", &out);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let stats: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
@@ -259,4 +270,44 @@ fn eval_writes_statistics_per_split_errors_and_a_violin_plot() {
         .output()
         .unwrap();
     assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("--split"));
+}
+
+/// Outputs never overwrite an input, and a failure writes none of them; an evaluation of a split
+/// with no samples is an error, not NaN statistics.
+#[test]
+fn outputs_spare_inputs_and_come_whole_or_not_at_all() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = bundle(&dir);
+    let (_, frame) = pressed(&renderer);
+    let image = tmp.path().join("f.png");
+    frame.save(&image).unwrap();
+    let before = std::fs::read(&image).unwrap();
+    let predict = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_infer"))
+            .args(["predict", "--bundle", dir.to_str().unwrap(), "--image", image.to_str().unwrap(), "--always"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let r = predict(&["--depth-out", image.to_str().unwrap()]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("is also an input"));
+    assert_eq!(std::fs::read(&image).unwrap(), before);
+    let d = tmp.path().join("d.png");
+    let r = predict(&["--depth-out", d.to_str().unwrap(), "--colour-out", d.to_str().unwrap()]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("two outputs"));
+    // The point cloud cannot be written (its folder is missing): the depth map is not left alone.
+    let ply = tmp.path().join("missing/p.ply");
+    let r = predict(&["--depth-out", d.to_str().unwrap(), "--ply", ply.to_str().unwrap()]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("p.ply"));
+    assert!(!d.exists(), "a failed command leaves none of its outputs");
+
+    // A dataset without test samples: `--split test` is an error naming it.
+    let data = tmp.path().join("data");
+    dataset_of(&renderer, &data, 4, 0.0);
+    let out = tmp.path().join("eval");
+    let r = eval(&dir, &data, "test", &out);
+    let e = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success() && e.contains("no test samples"), "{e}");
+    assert!(!out.exists(), "nothing is written");
 }

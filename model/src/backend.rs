@@ -11,6 +11,20 @@ pub fn default_device() -> Device {
     Device::flex()
 }
 
+/// Makes Burn's own default device the CPU (flex) unless `BURN_DEVICE` says otherwise. Burn
+/// picks a GPU backend first when one is compiled in, and places some state there without being
+/// asked (an optimiser record loaded on resume), which starts the Vulkan loader, and its
+/// complaints, on runs that asked for the CPU. Call first thing in `main`, before any thread
+/// starts; our code names its devices, so only Burn's implicit choice changes.
+#[allow(unsafe_code)]
+pub fn cpu_unless_asked() {
+    if std::env::var_os("BURN_DEVICE").is_none() {
+        // SAFETY: `set_var` races only with other threads reading or writing the environment;
+        // the callers run this at the start of `main`, before the program starts any thread.
+        unsafe { std::env::set_var("BURN_DEVICE", "flex") };
+    }
+}
+
 /// The default wgpu adapter (a discrete GPU when there is one; Mesa's lavapipe on a CPU-only
 /// machine with `mesa-vulkan-drivers`).
 #[cfg(feature = "wgpu")]

@@ -16,9 +16,11 @@ use std::path::{Path, PathBuf};
 use burn::module::Module;
 use burn::store::{ModuleRecord, ModuleSnapshot, SafetensorsStore};
 use burn::tensor::Device;
+use formats::output::OutputKind;
 use formats::training::TrainingRecord;
 use sensor::Sensor;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 use crate::{DenseDepth, DenseDepthConfig, DepthScale};
 
@@ -27,6 +29,8 @@ pub const BUNDLE_JSON: &str = "bundle.json";
 pub const WEIGHTS_BURNPACK: &str = "weights.bpk";
 pub const WEIGHTS_SAFETENSORS: &str = "weights.safetensors";
 pub const REFERENCE_PNG: &str = "reference.png";
+/// Largest network input side a bundle may name (the sensor's 570 px crop fits many times).
+pub const MAX_INPUT_SIDE_PX: usize = 4096;
 
 /// `bundle.json`.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -46,6 +50,38 @@ pub struct BundleFile {
     /// test error) or an import.
     #[serde(default)]
     pub training: Option<TrainingRecord>,
+    /// SHA-256 of each weights file (hex), checked when the bundle is loaded: a damaged or
+    /// replaced file is an error, not different predictions. Bundles written before it have
+    /// none.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub weights_sha256: BTreeMap<String, String>,
+}
+
+/// SHA-256 of a file's bytes, in hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The parameters of `model` that hold a NaN or an infinity, by name (`None`: all finite).
+pub fn non_finite_tensors(model: &DenseDepth) -> Option<Vec<String>> {
+    let bad: Vec<String> = model
+        .collect(None, None, false)
+        .into_iter()
+        .filter_map(|t| {
+            let name = t.name.clone();
+            let data = burn::store::bridge::into_data(t).ok()?;
+            let values = data.convert::<f32>().try_into_vec::<f32>().ok()?;
+            values.iter().any(|v| !v.is_finite()).then_some(name)
+        })
+        .collect();
+    (!bad.is_empty()).then_some(bad)
+}
+
+/// `names` for a message: the first few, then how many more.
+fn some_names(names: &[String]) -> String {
+    let shown = names.iter().take(5).cloned().collect::<Vec<_>>().join(", ");
+    if names.len() > 5 { format!("{shown} and {} more", names.len() - 5) } else { shown }
 }
 
 /// The input encoding every bundle of this version uses.
@@ -85,22 +121,28 @@ impl BundleFile {
     /// Reads and checks `DIR/bundle.json`.
     pub fn read(dir: &Path) -> Result<Self, BundleError> {
         let path = dir.join(BUNDLE_JSON);
-        let text = std::fs::read_to_string(&path).map_err(|e| err(&path, e))?;
+        let bytes = std::fs::read(&path).map_err(|e| err(&path, e))?;
+        Self::parse(&path, &bytes)
+    }
+
+    /// Parses and checks a `bundle.json`'s bytes; `path` names it in errors.
+    pub fn parse(path: &Path, bytes: &[u8]) -> Result<Self, BundleError> {
+        let text = std::str::from_utf8(bytes).map_err(|e| err(path, format!("not UTF-8 text: {e}")))?;
         // The version first: a newer bundle is refused as newer, not as malformed.
         #[derive(Deserialize)]
         struct Version {
             #[serde(default)]
             format_version: u32,
         }
-        let Version { format_version: version } = serde_json::from_str(&text).map_err(|e| err(&path, e))?;
+        let Version { format_version: version } = serde_json::from_str(text).map_err(|e| err(path, e))?;
         if version > BUNDLE_FORMAT_VERSION {
             return Err(err(
-                &path,
+                path,
                 format!("bundle format {version} is newer than this program understands ({BUNDLE_FORMAT_VERSION})"),
             ));
         }
-        let file: BundleFile = serde_json::from_str(&text).map_err(|e| err(&path, e))?;
-        file.sensor.validate().map_err(|e| err(&path, e))?;
+        let file: BundleFile = serde_json::from_str(text).map_err(|e| err(path, e))?;
+        file.sensor.validate().map_err(|e| err(path, e))?;
         let stride = DenseDepthConfig::STRIDE;
         if file.input_height_px == 0
             || file.input_width_px == 0
@@ -108,27 +150,48 @@ impl BundleFile {
             || !file.input_width_px.is_multiple_of(stride)
         {
             return Err(err(
-                &path,
+                path,
                 format!(
                     "input {}x{} must be positive multiples of {stride}",
                     file.input_height_px, file.input_width_px
                 ),
             ));
         }
+        if file.input_height_px > MAX_INPUT_SIDE_PX || file.input_width_px > MAX_INPUT_SIDE_PX {
+            return Err(err(
+                path,
+                format!(
+                    "input {}x{} is larger than {MAX_INPUT_SIDE_PX} px a side",
+                    file.input_height_px, file.input_width_px
+                ),
+            ));
+        }
+        file.model.check().map_err(|e| err(path, format!("model: {e}")))?;
+        file.depth_scale.check().map_err(|e| err(path, format!("depth_scale: {e}")))?;
         if file.input_encoding != INPUT_ENCODING {
-            return Err(err(&path, format!("unknown input encoding {:?}", file.input_encoding)));
+            return Err(err(path, format!("unknown input encoding {:?}", file.input_encoding)));
         }
         Ok(file)
     }
 }
 
-/// Writes a bundle to `dir` (replacing one that is there) atomically.
+/// Writes a bundle to `dir` atomically, replacing only a bundle that is there (never a folder
+/// of something else, nor one of `inputs`: see `formats::output`). Weights that are not finite
+/// are refused, naming the tensors, and nothing is written.
 pub fn write_bundle(
     dir: &Path,
     model: &DenseDepth,
     file: &BundleFile,
     reference_png: Option<&[u8]>,
+    inputs: &[&Path],
 ) -> Result<(), BundleError> {
+    formats::output::check_dir(dir, OutputKind::Bundle, inputs).map_err(|e| err(&e.path, e.why))?;
+    if let Some(names) = non_finite_tensors(model) {
+        return Err(err(
+            dir,
+            format!("not written: {} tensor(s) hold NaN or infinite values: {}", names.len(), some_names(&names)),
+        ));
+    }
     formats::fs::write_dir_atomic(dir, |tmp| {
         let mut file = file.clone();
         file.reference_image = reference_png.map(|_| REFERENCE_PNG.to_string());
@@ -139,9 +202,14 @@ pub fn write_bundle(
         model.clone().save_file(&bpk).map_err(|e| err(&bpk, e))?;
         let st = tmp.join(WEIGHTS_SAFETENSORS);
         model.save_into(&mut SafetensorsStore::from_file(&st)).map_err(|e| err(&st, e))?;
+        for (name, path) in [(WEIGHTS_BURNPACK, &bpk), (WEIGHTS_SAFETENSORS, &st)] {
+            let bytes = std::fs::read(path).map_err(|e| err(path, e))?;
+            file.weights_sha256.insert(name.to_string(), sha256_hex(&bytes));
+        }
         let json = tmp.join(BUNDLE_JSON);
         let text = serde_json::to_string_pretty(&file).expect("bundle serialises");
         std::fs::write(&json, text).map_err(|e| err(&json, e))?;
+        formats::output::mark(tmp, OutputKind::Bundle).map_err(|e| err(&e.path, e.why))?;
         Ok(())
     })
 }
@@ -150,8 +218,31 @@ pub fn write_bundle(
 pub fn load_bundle(dir: &Path, device: &Device) -> Result<(DenseDepth, BundleFile), BundleError> {
     let file = BundleFile::read(dir)?;
     let bpk = dir.join(WEIGHTS_BURNPACK);
-    let record = ModuleRecord::load(&bpk).map_err(|e| err(&bpk, e))?;
+    let bytes = std::fs::read(&bpk).map_err(|e| err(&bpk, e))?;
+    if let Some(want) = file.weights_sha256.get(WEIGHTS_BURNPACK) {
+        let got = sha256_hex(&bytes);
+        if &got != want {
+            return Err(err(
+                &bpk,
+                format!(
+                    "its SHA-256 is {got}, but bundle.json records {want}: the file was damaged or replaced; \
+                     export the bundle again"
+                ),
+            ));
+        }
+    }
+    let record = ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes)).map_err(|e| err(&bpk, e))?;
     let model = file.model.init(device).try_load_record(record).map_err(|e| err(&bpk, e))?;
+    if let Some(names) = non_finite_tensors(&model) {
+        return Err(err(
+            &bpk,
+            format!(
+                "{} tensor(s) hold NaN or infinite values: {}; the model cannot be used",
+                names.len(),
+                some_names(&names)
+            ),
+        ));
+    }
     Ok((model, file))
 }
 
@@ -172,6 +263,7 @@ mod tests {
             sensor: Sensor::default(),
             reference_image: None,
             training: None,
+            weights_sha256: BTreeMap::new(),
         }
     }
 
@@ -181,9 +273,9 @@ mod tests {
         let model = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&device);
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path().join("b");
-        write_bundle(&dir, &model, &bundle_file(), Some(b"png")).unwrap();
+        write_bundle(&dir, &model, &bundle_file(), Some(b"png"), &[]).unwrap();
         // Writing again replaces the bundle.
-        write_bundle(&dir, &model, &bundle_file(), Some(b"png")).unwrap();
+        write_bundle(&dir, &model, &bundle_file(), Some(b"png"), &[]).unwrap();
         let (loaded, file) = load_bundle(&dir, &device).unwrap();
         assert_eq!(file.reference_image.as_deref(), Some(REFERENCE_PNG));
         assert!(dir.join(WEIGHTS_SAFETENSORS).is_file());
@@ -198,7 +290,7 @@ mod tests {
         let model = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&device);
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path().join("b");
-        write_bundle(&dir, &model, &bundle_file(), None).unwrap();
+        write_bundle(&dir, &model, &bundle_file(), None, &[]).unwrap();
         // A newer format.
         let json = dir.join(BUNDLE_JSON);
         let text = std::fs::read_to_string(&json).unwrap();
@@ -206,18 +298,53 @@ mod tests {
         let e = load_bundle(&dir, &device).unwrap_err().to_string();
         assert!(e.contains("bundle.json") && e.contains("newer"), "{e}");
         std::fs::write(&json, &text).unwrap();
+        // 4 KB overwritten in the middle of the weights: the checksum says so.
+        let bpk = dir.join(WEIGHTS_BURNPACK);
+        let mut bytes = std::fs::read(&bpk).unwrap();
+        let middle = bytes.len() / 2;
+        bytes[middle..middle + 4096].fill(0x5a);
+        std::fs::write(&bpk, &bytes).unwrap();
+        let e = load_bundle(&dir, &device).unwrap_err().to_string();
+        assert!(e.contains("weights.bpk") && e.contains("SHA-256") && e.contains("damaged"), "{e}");
+        // The checks below reach past the checksum: bundle.json records the new file's.
+        let rerecord = || {
+            let mut file: BundleFile = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+            file.weights_sha256.insert(WEIGHTS_BURNPACK.into(), sha256_hex(&std::fs::read(&bpk).unwrap()));
+            std::fs::write(&json, serde_json::to_string(&file).unwrap()).unwrap();
+        };
         // Weights of another architecture: a mis-shaped tensor.
         let other = DenseDepthConfig::new(DenseNetConfig::compact()).init(&device);
-        other.save_file(dir.join(WEIGHTS_BURNPACK)).unwrap();
+        other.save_file(&bpk).unwrap();
+        rerecord();
         let e = load_bundle(&dir, &device).unwrap_err().to_string();
         assert!(e.contains("weights.bpk") && e.contains("shape"), "{e}");
         // One tensor left out of the file: named.
-        let mut store = burn::store::BurnpackStore::from_file(dir.join(WEIGHTS_BURNPACK))
+        let mut store = burn::store::BurnpackStore::from_file(&bpk)
             .overwrite(true)
             .with_filter(burn::store::PathFilter::new().with_predicate(|path, _| !path.ends_with("conv3.weight")));
         model.save_into(&mut store).unwrap();
+        rerecord();
         let e = load_bundle(&dir, &device).unwrap_err().to_string();
         assert!(e.contains("weights.bpk") && e.contains("conv3.weight"), "{e}");
+        // Non-finite weights: refused at load, naming the tensor.
+        let mut broken = model.clone();
+        broken.decoder.conv3.weight =
+            burn::module::Param::from_tensor(broken.decoder.conv3.weight.val().mul_scalar(f32::NAN));
+        broken.clone().save_file(&bpk).unwrap();
+        rerecord();
+        let e = load_bundle(&dir, &device).unwrap_err().to_string();
+        assert!(e.contains("NaN") && e.contains("conv3.weight"), "{e}");
+        // ... and refused at export, writing nothing.
+        let e = write_bundle(&tmp.path().join("nan"), &broken, &bundle_file(), None, &[]).unwrap_err().to_string();
+        assert!(e.contains("NaN") && e.contains("conv3.weight"), "{e}");
+        assert!(!tmp.path().join("nan").exists());
+        // A folder of something else is never replaced by a bundle.
+        let data = tmp.path().join("data");
+        std::fs::create_dir(&data).unwrap();
+        std::fs::write(data.join("manifest.json"), b"{}").unwrap();
+        let e = write_bundle(&data, &model, &bundle_file(), None, &[]).unwrap_err().to_string();
+        assert!(e.contains("manifest.json") && e.contains("did not write"), "{e}");
+        assert!(data.join("manifest.json").is_file());
         // Missing weights.
         std::fs::remove_file(dir.join(WEIGHTS_BURNPACK)).unwrap();
         let e = load_bundle(&dir, &device).unwrap_err().to_string();

@@ -41,6 +41,18 @@ impl DepthScale {
         (net - self.net_min) * self.max_depth_mm / self.range()
     }
 
+    /// Checks a scale read from a file: finite, a positive depth, a non-empty range.
+    pub fn check(&self) -> Result<(), String> {
+        let finite = [self.max_depth_mm, self.net_min, self.net_max].iter().all(|v| v.is_finite());
+        if !finite || self.max_depth_mm <= 0.0 || self.range() <= 0.0 || !self.range().is_finite() {
+            return Err(format!(
+                "needs a finite max_depth_mm > 0 and net_min < net_max, got {} mm, {}..{}",
+                self.max_depth_mm, self.net_min, self.net_max
+            ));
+        }
+        Ok(())
+    }
+
     pub fn tensor_to_net<const D: usize>(&self, depth_mm: burn::tensor::Tensor<D>) -> burn::tensor::Tensor<D> {
         depth_mm.mul_scalar(self.range() / self.max_depth_mm).add_scalar(self.net_min)
     }
@@ -62,5 +74,8 @@ mod tests {
         for d in [0.0f32, 0.013, 1.0, 4.7, 9.4] {
             assert!((s.to_mm(s.to_net(d)) - d).abs() < 1e-5);
         }
+        s.check().unwrap();
+        assert!(DepthScale { net_max: 10.0, ..s }.check().is_err());
+        assert!(DepthScale { max_depth_mm: 0.0, ..s }.check().is_err());
     }
 }

@@ -47,9 +47,14 @@ impl DepthMap {
 
     /// Reads a 16-bit micrometre PNG; the error names the file and what is wrong with it.
     pub fn load_png_um(path: &Path) -> Result<Self, SensorError> {
-        let bad = |message: String| SensorError::InFile { path: path.to_path_buf(), message };
         let bytes = std::fs::read(path).map_err(|e| SensorError::io(path, e))?;
-        let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
+        Self::decode_png_um(path, &bytes)
+    }
+
+    /// Decodes a 16-bit micrometre PNG's bytes; `path` names it in errors.
+    pub fn decode_png_um(path: &Path, bytes: &[u8]) -> Result<Self, SensorError> {
+        let bad = |message: String| SensorError::InFile { path: path.to_path_buf(), message };
+        let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
             .map_err(|e| bad(format!("not a readable PNG: {e}")))?;
         let image::DynamicImage::ImageLuma16(img) = img else {
             return Err(bad(format!("expected a 16-bit greyscale depth PNG, got {:?}", img.color())));

@@ -32,6 +32,10 @@ pub struct Sensor {
     pub correspondence: Correspondence,
 }
 
+/// Largest frame side a sensor description may give: a bound that keeps every per-pixel table
+/// (masks, rays, images) of a mistyped or corrupted file within memory.
+pub const MAX_FRAME_SIDE_PX: u32 = 16_384;
+
 impl Default for Sensor {
     fn default() -> Self {
         Self::with_radius(25.0)
@@ -107,6 +111,16 @@ impl Sensor {
         if !(self.max_theta_rad > 0.0 && self.max_theta_rad < std::f64::consts::PI) {
             return bad(format!("max_theta_rad must be in (0, pi), got {}", self.max_theta_rad));
         }
+        if self.frame_width_px > MAX_FRAME_SIDE_PX || self.frame_height_px > MAX_FRAME_SIDE_PX {
+            return bad(format!(
+                "a {}x{} frame is larger than any camera this reads ({MAX_FRAME_SIDE_PX} px a side at most)",
+                self.frame_width_px, self.frame_height_px
+            ));
+        }
+        let (u, v) = (self.correspondence.centre_u_px, self.correspondence.centre_v_px);
+        if !(u.is_finite() && v.is_finite()) {
+            return bad(format!("the optical centre must be finite, got ({u}, {v}) px"));
+        }
         if self.crop_size_px == 0 || self.crop_size_px > self.frame_width_px || self.crop_size_px > self.frame_height_px
         {
             return bad(format!(
@@ -176,9 +190,14 @@ impl Sensor {
 
     /// Reads and validates a JSON sensor description.
     pub fn load_json(path: &Path) -> Result<Self, SensorError> {
-        let text = std::fs::read_to_string(path).map_err(|e| SensorError::io(path, e))?;
+        let bytes = std::fs::read(path).map_err(|e| SensorError::io(path, e))?;
+        Self::from_json(path, &bytes)
+    }
+
+    /// Parses and validates a JSON sensor description's bytes; `path` names it in errors.
+    pub fn from_json(path: &Path, bytes: &[u8]) -> Result<Self, SensorError> {
         let sensor: Sensor =
-            serde_json::from_str(&text).map_err(|e| SensorError::Json { path: path.to_path_buf(), source: e })?;
+            serde_json::from_slice(bytes).map_err(|e| SensorError::Json { path: path.to_path_buf(), source: e })?;
         sensor.validate().map_err(|e| e.in_file(path))?;
         Ok(sensor)
     }

@@ -29,6 +29,9 @@ pub struct RunState {
     pub global_step: u64,
     pub skipped_steps: u64,
     pub bad_samples: Vec<String>,
+    /// Validation samples left out (`--on-bad-data skip`).
+    #[serde(default)]
+    pub bad_val_samples: Vec<String>,
     pub history: Vec<EpochMetrics>,
     /// Sum and count of the training loss over the current epoch so far.
     pub epoch_loss_sum: f64,
@@ -46,6 +49,7 @@ impl RunState {
             global_step: 0,
             skipped_steps: 0,
             bad_samples: Vec::new(),
+            bad_val_samples: Vec::new(),
             history: Vec::new(),
             epoch_loss_sum: 0.0,
             epoch_loss_count: 0,
@@ -113,7 +117,28 @@ pub fn latest(run: &Path) -> Option<PathBuf> {
 
 /// Reads a checkpoint's state.
 pub fn read_state(ckpt: &Path) -> Result<RunState> {
-    Ok(formats::read_json(&ckpt.join("state.json"))?)
+    let path = ckpt.join("state.json");
+    let bytes = std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+    parse_state(&path, &bytes)
+}
+
+/// Parses and checks a checkpoint's `state.json` (`path` names it in errors): its settings pass
+/// the CLI's checks, its model is one a file may describe, its position lies within the run.
+pub fn parse_state(path: &Path, bytes: &[u8]) -> Result<RunState> {
+    let state: RunState =
+        serde_json::from_slice(bytes).with_context(|| format!("{}: not a checkpoint state", path.display()))?;
+    let bad = |what: String| anyhow::anyhow!("{}: {what}", path.display());
+    state.config.validate().map_err(|e| bad(format!("its settings: {e}")))?;
+    state.model.check().map_err(|e| bad(format!("its model: {e}")))?;
+    if state.epoch > state.config.epochs || state.history.len() > state.epoch {
+        return Err(bad(format!(
+            "it stands at epoch {} of {} with {} epoch(s) measured",
+            state.epoch,
+            state.config.epochs,
+            state.history.len()
+        )));
+    }
+    Ok(state)
 }
 
 fn read(dir: &Path, name: &str) -> Result<Bytes> {

@@ -5,7 +5,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use burn::module::Module;
 use formats::dataset::Split;
-use formats::training::{Imported, Trained, TrainingRecord};
+use formats::training::{Imported, TestError, Trained, TrainingRecord};
 use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, INPUT_ENCODING, write_bundle};
 use model::{DenseDepth, DepthScale};
 use sensor::Sensor;
@@ -21,18 +21,47 @@ pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device) -> Resu
     let state = checkpoint::read_state(&latest)?;
     let weights = checkpoint::best(run).unwrap_or(latest);
     let net = checkpoint::restore_model(&weights, &state.model, device)?;
-    export_net(&net, &state, out)
+    export_net(&net, &state, out, &[run])
 }
 
-/// Writes the bundle of a trained network and its run's state.
-/// The bundle records the network's error on the dataset's test split, so that every speed
-/// figure taken from it can stand beside an error figure.
-pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path) -> Result<()> {
+/// Writes the bundle of a trained network and its run's state (never over the dataset, nor
+/// over `inputs`, the run's folder say).
+/// The bundle records the network's error on the dataset's whole test split with its image
+/// count, so that every speed figure taken from it can stand beside an error figure; where the
+/// split is empty or an image of it cannot be read (`--on-bad-data skip`), it records why there
+/// is no test error instead of a figure over part of it.
+pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path, inputs: &[&Path]) -> Result<()> {
+    let mut all_inputs = vec![state.config.data.as_path()];
+    all_inputs.extend(inputs);
+    formats::output::check_dir(out, formats::output::OutputKind::Bundle, &all_inputs)?;
     let mut test = DepthDataset::open(&state.config.data, Some(Split::Test), state.config.input_hw)?;
     test.scale = state.config.scale(test.sensor.max_depth_mm);
     let batcher = crate::data::DepthBatcher { input_hw: state.config.input_hw, mask: test.mask.clone() };
     let device = net.devices().into_iter().next().context("the network has no device")?;
-    let (test_l1_mm, _) = crate::fit::validate(net, &test, &batcher, state.config.batch, &device)?;
+    let (test_error, test_missing) = if test.records.is_empty() {
+        (None, Some("the dataset has no test split".to_string()))
+    } else {
+        let eval =
+            crate::fit::validate(net, &test, &batcher, state.config.batch, &device, state.config.on_bad_data, "test")?;
+        if eval.bad.is_empty() {
+            (Some(TestError { l1_mm: eval.l1_mm, images: eval.images }), None)
+        } else {
+            eprintln!(
+                "warning: {} of {} test samples could not be read; the bundle records no test error",
+                eval.bad.len(),
+                test.records.len()
+            );
+            (
+                None,
+                Some(format!(
+                    "{} of {} test samples could not be read: {}",
+                    eval.bad.len(),
+                    test.records.len(),
+                    eval.bad.join("; ")
+                )),
+            )
+        }
+    };
     let file = BundleFile {
         format_version: BUNDLE_FORMAT_VERSION,
         model: state.model.clone(),
@@ -42,6 +71,7 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path) -> Result<()> 
         depth_scale: test.scale,
         sensor: test.sensor.clone(),
         reference_image: None,
+        weights_sha256: Default::default(),
         training: Some(TrainingRecord::Trained(Trained {
             data: state.config.data.clone(),
             epochs: state.epoch,
@@ -52,12 +82,13 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path) -> Result<()> 
             skipped_steps: state.skipped_steps,
             bad_samples: state.bad_samples.clone(),
             history: state.history.clone(),
-            test_l1_mm: test_l1_mm.is_finite().then_some(test_l1_mm),
-            test_images: test.records.len(),
+            test: test_error,
+            test_missing,
+            test_l1_mm: None,
             selected_epoch: state.selected().map_or(state.epoch, |m| m.epoch),
         })),
     };
-    write_bundle(out, net, &file, test.reference_png().as_deref())?;
+    write_bundle(out, net, &file, test.reference_png().as_deref(), &all_inputs)?;
     Ok(())
 }
 
@@ -69,6 +100,7 @@ pub fn import_pth(
     out: &Path,
     device: &burn::tensor::Device,
 ) -> Result<()> {
+    let sensor_path = sensor;
     let sensor = Sensor::load_json(sensor)?;
     let imported = model::import::load_pytorch(pth, device)?;
     if imported.encoder_only {
@@ -85,7 +117,8 @@ pub fn import_pth(
         sensor,
         reference_image: None,
         training: Some(TrainingRecord::Imported(Imported { imported_from: pth.to_path_buf() })),
+        weights_sha256: Default::default(),
     };
-    write_bundle(out, &net, &file, None)?;
+    write_bundle(out, &net, &file, None, &[pth, sensor_path])?;
     Ok(())
 }

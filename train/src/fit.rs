@@ -16,6 +16,7 @@ use burn::module::Module;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::{Device, Tensor};
 use formats::dataset::Split;
+use formats::output::OutputKind;
 use formats::training::EpochMetrics;
 use formats::{Progress, SplitMix64};
 use model::{DenseDepth, DenseDepthConfig, DepthLossConfig};
@@ -80,7 +81,7 @@ pub fn fit_on(run_dir: &Path, config: &FitConfig, start: Start, devices: &[Devic
 pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunOptions) -> Result<Fitted> {
     config.validate()?;
     let Some(device) = options.devices.first() else { bail!("no training device given") };
-    std::fs::create_dir_all(run_dir).with_context(|| format!("{}: cannot create", run_dir.display()))?;
+    formats::output::claim_dir(run_dir, OutputKind::Run, &[&config.data])?;
     let (train, val) = select(config)?;
     let mut run = Run::start(run_dir, config, start, options, train, val)?;
     while run.state.epoch < config.epochs {
@@ -108,6 +109,12 @@ pub fn select(config: &FitConfig) -> Result<(DepthDataset, DepthDataset)> {
         train.records = ids.into_iter().map(|i| train.records[i].clone()).collect();
     }
     let mut val = DepthDataset::open(&config.data, Some(Split::Test), config.input_hw)?;
+    if config.val_fraction == 0.0 && val.records.is_empty() {
+        bail!(
+            "{}: the dataset has no test split to validate on; hold out training samples with --val-fraction",
+            config.data.display()
+        );
+    }
     if config.val_fraction > 0.0 {
         // Hold out a seeded part of the training samples; the test split stays unseen.
         let n = train.records.len();
@@ -161,11 +168,23 @@ impl<'a> Run<'a> {
         let (mut net, optim, state) = match checkpoint::latest(dir) {
             Some(ckpt) if options.resume => {
                 let state = checkpoint::read_state(&ckpt)?;
-                if state.config != *config {
+                let mut differences =
+                    formats::json::differences(&serde_json::to_value(&state.config)?, &serde_json::to_value(config)?);
+                if state.model != start.model_config {
+                    let name = |c: &DenseDepthConfig| c.encoder.preset_name().unwrap_or("custom").to_string();
+                    differences.push(format!(
+                        "model: {} before, {} now ({})",
+                        name(&state.model),
+                        name(&start.model_config),
+                        if options.resume { "--preset, or the bundle of --from" } else { "" }
+                    ));
+                }
+                if !differences.is_empty() {
                     bail!(
-                        "{}: the checkpoint was made with other settings; resume with the same arguments, \
+                        "{}: the checkpoint was made with other settings ({}); resume with the same arguments, \
                          or use another --out",
-                        ckpt.join("state.json").display()
+                        ckpt.join("state.json").display(),
+                        differences.join("; ")
                     );
                 }
                 let (net, optim) = checkpoint::restore(&ckpt, &state, &train_device)?;
@@ -243,7 +262,9 @@ impl<'a> Run<'a> {
             progress.set_message(&format!("loss {mean:.4}"));
             let s = &self.state;
             if s.batch < n_batches && s.global_step.is_multiple_of(config.checkpoint_every) && self.bad_run == 0 {
-                checkpoint::save(self.dir, &self.net, &self.optim, s)?;
+                // A checkpoint is only ever a good one: weights that diverged stop the run instead.
+                self.refuse_divergence(&self.net.valid(), 0.0)?;
+                checkpoint::save(self.dir, &self.net, &self.optim, &self.state)?;
             }
         }
         progress.finish();
@@ -271,28 +292,72 @@ impl<'a> Run<'a> {
         eprintln!("step {}: non-finite loss ({value}); step skipped", self.state.global_step);
         if self.bad_run >= self.config.max_bad_steps {
             bail!(
-                "{} consecutive non-finite steps at step {}: stopping; the last good checkpoint is in {} (try a lower --lr)",
+                "{} consecutive non-finite steps at step {}: stopping; {}",
                 self.bad_run,
                 self.state.global_step,
-                checkpoint::dir(self.dir).display()
+                self.last_checkpoint()
             );
         }
         Ok(())
+    }
+
+    /// Stops the run, keeping the last checkpoint (which is good: none is written from
+    /// weights that fail this), when the weights hold NaN or infinite values or the validation
+    /// loss is not finite.
+    fn refuse_divergence(&self, net: &DenseDepth, val_loss: f64) -> Result<()> {
+        let bad = model::bundle::non_finite_tensors(net);
+        if bad.is_none() && val_loss.is_finite() {
+            return Ok(());
+        }
+        let what = match bad {
+            Some(names) => {
+                format!("{} tensor(s) of the weights hold NaN or infinite values ({})", names.len(), names[0])
+            }
+            None => format!("the validation loss is {val_loss}"),
+        };
+        bail!("training diverged by step {}: {what}; {}", self.state.global_step, self.last_checkpoint())
+    }
+
+    /// Where the run can go on from after it stopped: its last checkpoint, which is good (none
+    /// is written from weights that diverged), or none.
+    fn last_checkpoint(&self) -> String {
+        match checkpoint::latest(self.dir).map(|c| checkpoint::read_state(&c)) {
+            Some(Ok(s)) => format!(
+                "the last good checkpoint ({}, epoch {} batch {}, step {}) is kept: `train export --run {}` \
+                 exports it; a new run with a lower --lr may not diverge",
+                checkpoint::dir(self.dir).display(),
+                s.epoch + 1,
+                s.batch,
+                s.global_step,
+                self.dir.display()
+            ),
+            _ => "no checkpoint was written before it; start again with a lower --lr".into(),
+        }
     }
 
     /// Validation, the epoch's metrics, the best epoch's model, the checkpoint and the metrics
     /// files.
     fn end_epoch(&mut self, started: Instant) -> Result<()> {
         let device = &self.options.devices[0];
-        let (val_l1_mm, val_loss) = validate(&self.net.valid(), &self.val, &self.batcher, self.config.batch, device)?;
+        let net = self.net.valid();
+        let split = if self.config.val_fraction > 0.0 { "validation" } else { "test" };
+        let val = validate(&net, &self.val, &self.batcher, self.config.batch, device, self.config.on_bad_data, split)?;
+        self.refuse_divergence(&net, val.loss)?;
         let state = &mut self.state;
+        for name in val.bad {
+            if !state.bad_val_samples.contains(&name) {
+                eprintln!("skipping bad {split} sample: {name}");
+                state.bad_val_samples.push(name);
+            }
+        }
         let metrics = EpochMetrics {
             epoch: state.epoch + 1,
             train_loss: state.epoch_loss_sum / state.epoch_loss_count.max(1) as f64,
-            val_l1_mm,
-            val_loss,
+            val_l1_mm: val.l1_mm,
+            val_loss: val.loss,
             skipped_steps: state.skipped_steps,
             bad_samples: state.bad_samples.len(),
+            bad_val_samples: state.bad_val_samples.len(),
             seconds: started.elapsed().as_secs_f64(),
         };
         eprintln!(
@@ -316,23 +381,49 @@ impl<'a> Run<'a> {
     }
 }
 
-/// Mean per-image L1 (mm, useful pixels) and mean loss over a split, in eval mode.
+/// A split's errors, and the samples that could not be read.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Evaluation {
+    /// Mean per-image L1 (mm, useful pixels, network resolution).
+    pub l1_mm: f64,
+    /// Mean loss over the batches.
+    pub loss: f64,
+    /// Images the means are over.
+    pub images: usize,
+    /// Samples left out (`skip`), each `file: problem`.
+    pub bad: Vec<String>,
+}
+
+/// Mean per-image L1 (mm, useful pixels) and mean loss over `data` (the split named `split` in
+/// messages), in eval mode. A bad sample stops it (`Stop`) or is left out and listed (`Skip`);
+/// a split with no usable sample is an error, never 0 or NaN.
 pub fn validate(
     net: &DenseDepth,
     data: &DepthDataset,
     batcher: &DepthBatcher,
     batch: usize,
     device: &Device,
-) -> Result<(f64, f64)> {
-    if data.records.is_empty() {
-        return Ok((f64::NAN, f64::NAN));
-    }
+    on_bad: OnBadData,
+    split: &str,
+) -> Result<Evaluation> {
     let loss_config = DepthLossConfig::new().with_dynamic_range(data.scale.range() as f64);
     let useful: f32 = batcher.mask.iter().sum::<f32>().max(1.0);
     let (mut l1_sum, mut loss_sum, mut images, mut batches) = (0f64, 0f64, 0usize, 0usize);
+    let mut bad = Vec::new();
     let ids: Vec<usize> = (0..data.records.len()).collect();
-    for chunk in ids.chunks(batch) {
-        let items: Vec<_> = chunk.iter().filter_map(|&i| data.load(i, None).ok()).collect();
+    for chunk in ids.chunks(batch.max(1)) {
+        let mut items = Vec::with_capacity(chunk.len());
+        for &i in chunk {
+            match data.load(i, None) {
+                Ok(item) => items.push(item),
+                Err(e) if on_bad == OnBadData::Skip => bad.push(e.to_string()),
+                Err(e) => {
+                    return Err(e).context(format!(
+                        "bad {split} sample (use --on-bad-data skip to leave such samples out, counted)"
+                    ));
+                }
+            }
+        }
         if items.is_empty() {
             continue;
         }
@@ -349,7 +440,15 @@ pub fn validate(
         images += n;
         batches += 1;
     }
-    Ok((l1_sum / images.max(1) as f64, loss_sum / batches.max(1) as f64))
+    if images == 0 {
+        bail!(
+            "{}: the {split} split has no usable sample ({} listed, {} unreadable): no error can be measured on it",
+            data.dir().display(),
+            data.records.len(),
+            bad.len()
+        );
+    }
+    Ok(Evaluation { l1_mm: l1_sum / images as f64, loss: loss_sum / batches as f64, images, bad })
 }
 
 /// The order of an epoch's samples, from the run's seed and the epoch alone (so a resumed run
@@ -365,11 +464,19 @@ pub fn permutation(n: usize, seed: u64, epoch: u64) -> Vec<usize> {
 
 fn write_metrics(run: &Path, history: &[EpochMetrics]) -> Result<()> {
     formats::write_json(&run.join("metrics.json"), &history)?;
-    let mut csv = String::from("epoch,train_loss,val_l1_mm,val_loss,skipped_steps,bad_samples,seconds\n");
+    let mut csv =
+        String::from("epoch,train_loss,val_l1_mm,val_loss,skipped_steps,bad_samples,bad_val_samples,seconds\n");
     for m in history {
         csv.push_str(&format!(
-            "{},{},{},{},{},{},{:.1}\n",
-            m.epoch, m.train_loss, m.val_l1_mm, m.val_loss, m.skipped_steps, m.bad_samples, m.seconds
+            "{},{},{},{},{},{},{},{:.1}\n",
+            m.epoch,
+            m.train_loss,
+            m.val_l1_mm,
+            m.val_loss,
+            m.skipped_steps,
+            m.bad_samples,
+            m.bad_val_samples,
+            m.seconds
         ));
     }
     formats::fs::write_atomic(&run.join("metrics.csv"), csv.as_bytes())?;

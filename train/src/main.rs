@@ -193,7 +193,16 @@ fn config(c: &Common, input_hw: [usize; 2], net_range: [f32; 2], freeze_encoder:
     Ok(config)
 }
 
+/// A bundle folder is checked before any training: never the data, the run or the start.
+fn check_bundle(bundle: &Option<PathBuf>, inputs: &[&std::path::Path]) -> Result<()> {
+    if let Some(b) = bundle {
+        formats::output::check_dir(b, formats::output::OutputKind::Bundle, inputs)?;
+    }
+    Ok(())
+}
+
 fn run_fit(args: FitArgs) -> Result<()> {
+    check_bundle(&args.bundle, &[&args.common.data, &args.common.out])?;
     let cfg = config(&args.common, args.input, args.depth_units.net_range(), false)?;
     let model_config =
         model::DenseDepthConfig::new(model::DenseNetConfig::by_name(&args.preset).map_err(anyhow::Error::msg)?);
@@ -214,13 +223,14 @@ fn run_fit(args: FitArgs) -> Result<()> {
     let fitted = fit_with(&args.common.out, &cfg, Start { model_config, weights }, &options)?;
     report(&fitted.state);
     if let Some(bundle) = &args.bundle {
-        train::export::export_net(&fitted.net, &fitted.state, bundle)?;
+        train::export::export_net(&fitted.net, &fitted.state, bundle, &[&args.common.out])?;
         println!("wrote bundle {}", bundle.display());
     }
     Ok(())
 }
 
 fn run_finetune(args: FinetuneArgs) -> Result<()> {
+    check_bundle(&args.bundle, &[&args.common.data, &args.common.out, &args.from])?;
     let options = options(&args.common)?;
     let dev = options.devices[0].clone();
     let (net, file) = model::bundle::load_bundle(&args.from, &dev)?;
@@ -236,7 +246,7 @@ fn run_finetune(args: FinetuneArgs) -> Result<()> {
     let fitted = fit_with(&args.common.out, &cfg, start, &options)?;
     report(&fitted.state);
     if let Some(bundle) = &args.bundle {
-        train::export::export_net(&fitted.net, &fitted.state, bundle)?;
+        train::export::export_net(&fitted.net, &fitted.state, bundle, &[&args.common.out, &args.from])?;
         println!("wrote bundle {}", bundle.display());
     }
     Ok(())
@@ -252,15 +262,18 @@ fn report(state: &train::checkpoint::RunState) {
     if state.skipped_steps > 0 {
         println!("{} steps skipped for a non-finite loss", state.skipped_steps);
     }
-    if !state.bad_samples.is_empty() {
-        println!("{} bad samples skipped:", state.bad_samples.len());
-        for s in &state.bad_samples {
-            println!("  {s}");
+    for (split, bad) in [("training", &state.bad_samples), ("validation", &state.bad_val_samples)] {
+        if !bad.is_empty() {
+            println!("{} bad {split} samples skipped:", bad.len());
+            for s in bad {
+                println!("  {s}");
+            }
         }
     }
 }
 
 fn main() -> ExitCode {
+    model::backend::cpu_unless_asked();
     sensor::alloc::keep_freed_memory();
     let cli = Cli::parse();
     let result = match cli.command {

@@ -80,7 +80,7 @@ fn a_tiny_dataset_trains_and_its_bundle_predicts_the_same() {
     assert!(run.join("metrics.csv").is_file() && run.join("metrics.json").is_file());
 
     let bundle = tmp.path().join("bundle");
-    train::export::export_net(&fitted.net, &fitted.state, &bundle).unwrap();
+    train::export::export_net(&fitted.net, &fitted.state, &bundle, &[]).unwrap();
     assert!(bundle.join("reference.png").is_file(), "the unit's reference image travels with the bundle");
     let (loaded, file) = model::bundle::load_bundle(&bundle, &device).unwrap();
     assert_eq!([file.input_height_px, file.input_width_px], [64, 64]);
@@ -202,7 +202,7 @@ fn finetuning_with_a_frozen_encoder_changes_only_the_decoder() {
     let device = model::backend::default_device();
     let fitted = fit(&tmp.path().join("base"), &config(&data, 1), tiny_start(), &device, false).unwrap();
     let base = tmp.path().join("base-bundle");
-    train::export::export_net(&fitted.net, &fitted.state, &base).unwrap();
+    train::export::export_net(&fitted.net, &fitted.state, &base, &[]).unwrap();
 
     let (run, tuned) = (tmp.path().join("tune"), tmp.path().join("tuned-bundle"));
     let s = |p: &Path| p.to_str().unwrap().to_string();

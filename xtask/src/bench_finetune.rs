@@ -9,7 +9,7 @@ use dataset::{Kit, Split};
 use formats::dataset::GeneratorParams;
 use model::{DenseDepth, DenseDepthConfig, DenseNetConfig};
 use train::data::{DepthBatcher, DepthDataset};
-use train::{FitConfig, Schedule, Start, fit, validate};
+use train::{FitConfig, OnBadData, Schedule, Start, fit, validate};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -63,7 +63,9 @@ pub fn run(args: Args) -> Result<()> {
     let mut b_test = DepthDataset::open(b, Some(Split::Test), input_hw)?;
     b_test.scale = cfg(b, 1.0).scale(b_test.sensor.max_depth_mm);
     let batcher = DepthBatcher { input_hw, mask: b_test.mask.clone() };
-    let on_b = |net: &DenseDepth| -> Result<f64> { Ok(validate(net, &b_test, &batcher, args.batch, &device)?.0) };
+    let on_b = |net: &DenseDepth| -> Result<f64> {
+        Ok(validate(net, &b_test, &batcher, args.batch, &device, OnBadData::Stop, "test")?.l1_mm)
+    };
     let run_dir = |name: &str| {
         let d = args.work.join("runs").join(name);
         std::fs::remove_dir_all(&d).ok();
@@ -75,7 +77,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut a_test = DepthDataset::open(a, Some(Split::Test), input_hw)?;
     a_test.scale = b_test.scale;
     let batcher_a = DepthBatcher { input_hw, mask: a_test.mask.clone() };
-    let a_own = validate(&trained_a.net, &a_test, &batcher_a, args.batch, &device)?.0;
+    let a_own = validate(&trained_a.net, &a_test, &batcher_a, args.batch, &device, OnBadData::Stop, "test")?.l1_mm;
     let before = on_b(&trained_a.net)?;
     let mut rows = vec![("A on A's test split".to_string(), a_own), ("A on B, before fine-tuning".to_string(), before)];
     for fraction in [0.05, 0.10, 0.25] {

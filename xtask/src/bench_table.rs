@@ -229,7 +229,7 @@ fn train_once(
     let device = model::backend::default_device();
     let (train_s, fitted) = once(|| fit(run_dir, &config, start, &device, true));
     let fitted = fitted.with_context(|| format!("training {preset_name} at {side} (run again to resume)"))?;
-    train::export::export_net(&fitted.net, &fitted.state, bundle)?;
+    train::export::export_net(&fitted.net, &fitted.state, bundle, &[])?;
     let trained = Trained { train_s, params: fitted.net.num_params() };
     formats::fs::write_atomic(&cost_path, serde_json::to_string(&trained)?.as_bytes())?;
     Ok(trained)

@@ -7,6 +7,7 @@ mod bench_model;
 mod bench_raycast;
 mod bench_render;
 mod bench_table;
+mod fuzz;
 mod quickstart;
 mod timing;
 
@@ -28,6 +29,9 @@ enum Command {
         #[command(subcommand)]
         what: Bench,
     },
+    /// Every parser of outside files fed mutated and truncated real files: errors or valid
+    /// values, never a panic or a hang.
+    Fuzz(fuzz::Args),
     /// The whole pipeline on the embedded kit: dataset, training, bundle, evaluation, examples.
     Quickstart(quickstart::Args),
 }
@@ -50,6 +54,7 @@ enum Bench {
 }
 
 fn main() -> ExitCode {
+    model::backend::cpu_unless_asked();
     sensor::alloc::keep_freed_memory();
     let cli = Cli::parse();
     let result = match cli.command {
@@ -60,6 +65,7 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Loader(args) } => bench_loader::run(args),
         Command::Bench { what: Bench::Table(args) } => bench_table::run(args),
         Command::Quickstart(args) => quickstart::run(args),
+        Command::Fuzz(args) => fuzz::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

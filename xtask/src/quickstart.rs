@@ -92,7 +92,7 @@ pub fn run(args: Args) -> Result<()> {
     let fitted = fit(&run_dir, &config, start, &device, true).context("training (run again to resume)")?;
 
     println!("[3/5] bundle: {}", bundle.display());
-    train::export::export_net(&fitted.net, &fitted.state, &bundle)?;
+    train::export::export_net(&fitted.net, &fitted.state, &bundle, &[&run_dir])?;
 
     println!("[4/5] evaluation of both splits: {}", eval_dir.display());
     let mut predictor = Predictor::load(&bundle, &device)?;
@@ -314,7 +314,12 @@ mod tests {
         assert_eq!(std::fs::read_to_string(out.join("eval/stats.json")).unwrap(), first);
         let bundle: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("bundle/bundle.json")).unwrap()).unwrap();
-        assert!(bundle["training"]["test_l1_mm"].is_number());
+        // The test error with the count of images it is the mean of, all of the test split's.
+        let test = &bundle["training"]["test"];
+        assert!(test["l1_mm"].as_f64().is_some_and(|v| v.is_finite() && v > 0.0), "{test}");
+        let manifest = Manifest::load(&out.join("dataset")).unwrap();
+        let test_images = manifest.split(Some(Split::Test)).count() as u64;
+        assert_eq!(test["images"].as_u64(), Some(test_images), "{test}");
         // A damaged output is caught.
         std::fs::write(out.join("eval/stats.json"), "{").unwrap();
         assert!(check_outputs(&out).is_err());

@@ -109,6 +109,33 @@ impl DenseDepthConfig {
 
     /// Input sides must be multiples of this (five halvings).
     pub const STRIDE: usize = 32;
+
+    /// Checks a configuration read from a file: every size positive and within what a network
+    /// of this family could hold, so that a corrupted file is an error rather than an attempt to
+    /// allocate terabytes.
+    pub fn check(&self) -> Result<(), String> {
+        let e = &self.encoder;
+        let within = |v: usize, max: usize| (1..=max).contains(&v);
+        if !within(e.growth_rate, 512)
+            || !within(e.num_init_features, 2048)
+            || !within(e.bn_size, 64)
+            || !e.block_config.iter().all(|&n| within(n, 256))
+        {
+            return Err(format!(
+                "encoder sizes out of range: growth_rate {} (1..=512), block_config {:?} (1..=256 each), \
+                 num_init_features {} (1..=2048), bn_size {} (1..=64)",
+                e.growth_rate, e.block_config, e.num_init_features, e.bn_size
+            ));
+        }
+        if !(self.decoder_width > 0.0 && self.decoder_width <= 4.0) || self.decoder_channels()[4] == 0 {
+            return Err(format!(
+                "decoder_width {} leaves the decoder without channels (widths {:?}); it must be in (0, 4]",
+                self.decoder_width,
+                self.decoder_channels()
+            ));
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]
@@ -125,7 +152,13 @@ mod tests {
         let cfg = DenseDepthConfig::new(DenseNetConfig::densenet161());
         assert_eq!(cfg.decoder_channels(), [1104, 552, 276, 138, 69]);
         for name in DenseNetConfig::PRESETS {
-            assert!(DenseNetConfig::preset(name).is_some());
+            let preset = DenseNetConfig::preset(name).unwrap();
+            DenseDepthConfig::new(preset).check().unwrap();
         }
+        let mut absurd = DenseDepthConfig::new(DenseNetConfig::tiny());
+        absurd.encoder.growth_rate = 1 << 40;
+        assert!(absurd.check().unwrap_err().contains("growth_rate"));
+        absurd = DenseDepthConfig::new(DenseNetConfig::tiny()).with_decoder_width(0.001);
+        assert!(absurd.check().unwrap_err().contains("decoder_width"));
     }
 }

@@ -1,0 +1,268 @@
+//! Outputs never destroy what is not theirs.
+//!
+//! A command that writes a folder first claims it: the folder may be new, empty, or a previous
+//! output of the same kind (its marker file, `.densetact-output`, says which kind wrote it), and
+//! it may be none of the command's inputs nor hold one of them. Anything else is refused before
+//! any work, naming the path and what it holds. A file output may not be one of the inputs.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+/// The marker file a command leaves in each folder it writes.
+pub const MARKER: &str = ".densetact-output";
+
+/// What a folder holds, as the command that wrote it says.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OutputKind {
+    /// `dataset generate --out`, `dataset label --out`.
+    Dataset,
+    /// `dataset generate --session`: a simulated capture session.
+    Session,
+    /// `train fit|finetune --out`: checkpoints and metrics.
+    Run,
+    /// `train --bundle`, `train export|import --out`.
+    Bundle,
+    /// `infer eval --out`.
+    Evaluation,
+    /// The quickstart's and the benchmarks' own folders.
+    Work,
+}
+
+impl OutputKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            OutputKind::Dataset => "a dataset",
+            OutputKind::Session => "a simulated session",
+            OutputKind::Run => "a training run",
+            OutputKind::Bundle => "a bundle",
+            OutputKind::Evaluation => "an evaluation",
+            OutputKind::Work => "a work folder",
+        }
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+struct Marker {
+    kind: OutputKind,
+}
+
+/// An output refused: the path, and why.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {why}")]
+pub struct OutputError {
+    pub path: PathBuf,
+    pub why: String,
+}
+
+/// `path` made absolute and, where it exists, with its links resolved; where it does not, its
+/// nearest existing ancestor is resolved and the rest appended (so that `out/../data` and
+/// `data` compare equal before `out` exists).
+fn resolved(path: &Path) -> PathBuf {
+    let joined = if path.is_absolute() {
+        path.to_path_buf()
+    } else {
+        std::env::current_dir().map(|d| d.join(path)).unwrap_or_else(|_| path.to_path_buf())
+    };
+    // `.` and `..` lexically first: `x/../run` is `run` even while `x` does not exist.
+    let mut absolute = PathBuf::new();
+    for part in joined.components() {
+        match part {
+            std::path::Component::CurDir => {}
+            std::path::Component::ParentDir => {
+                absolute.pop();
+            }
+            other => absolute.push(other),
+        }
+    }
+    let mut rest = Vec::new();
+    let mut head = absolute.as_path();
+    loop {
+        if let Ok(real) = head.canonicalize() {
+            return rest.iter().rev().fold(real, |p, part| p.join(part));
+        }
+        match (head.file_name(), head.parent()) {
+            (Some(name), Some(parent)) => {
+                rest.push(name.to_os_string());
+                head = parent;
+            }
+            _ => return absolute,
+        }
+    }
+}
+
+/// Refuses an output file that is one of `inputs`.
+pub fn check_file(out: &Path, inputs: &[&Path]) -> Result<(), OutputError> {
+    let o = resolved(out);
+    for input in inputs {
+        if resolved(input) == o {
+            return Err(OutputError {
+                path: out.to_path_buf(),
+                why: format!("is also an input ({}); writing it would destroy it", input.display()),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Refuses two outputs that are the same file.
+pub fn check_distinct(outputs: &[&Path]) -> Result<(), OutputError> {
+    for (i, a) in outputs.iter().enumerate() {
+        for b in &outputs[..i] {
+            if resolved(a) == resolved(b) {
+                return Err(OutputError { path: a.to_path_buf(), why: "is named as two outputs".into() });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// What a folder holds, for a refusal: its entry count and a few names.
+fn contents(dir: &Path) -> String {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .map(|d| {
+            d.filter_map(|e| e.ok())
+                .map(|e| {
+                    let dir = e.file_type().map(|t| t.is_dir()).unwrap_or(false);
+                    format!("{}{}", e.file_name().to_string_lossy(), if dir { "/" } else { "" })
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    names.sort();
+    let n = names.len();
+    let shown = names.into_iter().take(4).collect::<Vec<_>>().join(", ");
+    format!("{n} entr{} ({shown}{})", if n == 1 { "y" } else { "ies" }, if n > 4 { ", ..." } else { "" })
+}
+
+/// Claims the folder `dir` for an output of `kind`: it may be new, empty or a previous output of
+/// the same kind, and neither one of `inputs` nor a folder holding one. Creates it and leaves
+/// the marker. The refusal names the path and what it holds.
+pub fn claim_dir(dir: &Path, kind: OutputKind, inputs: &[&Path]) -> Result<(), OutputError> {
+    check_dir(dir, kind, inputs)?;
+    std::fs::create_dir_all(dir)
+        .map_err(|e| OutputError { path: dir.to_path_buf(), why: format!("cannot create: {e}") })?;
+    mark(dir, kind)
+}
+
+/// [`claim_dir`]'s checks alone, for a folder that is written elsewhere and renamed into place.
+pub fn check_dir(dir: &Path, kind: OutputKind, inputs: &[&Path]) -> Result<(), OutputError> {
+    let d = resolved(dir);
+    let refuse = |why: String| Err(OutputError { path: dir.to_path_buf(), why });
+    for input in inputs {
+        let i = resolved(input);
+        if i == d {
+            return refuse(format!(
+                "is also an input ({}); writing {} there would destroy it",
+                input.display(),
+                kind.name()
+            ));
+        }
+        if i.starts_with(&d) {
+            return refuse(format!(
+                "holds an input ({}); writing {} there could destroy it",
+                input.display(),
+                kind.name()
+            ));
+        }
+    }
+    if !dir.exists() {
+        return Ok(());
+    }
+    if !dir.is_dir() {
+        return refuse(format!("is a file, not a folder for {}", kind.name()));
+    }
+    match marker_kind(dir) {
+        Some(k) if k == kind => Ok(()),
+        Some(k) => refuse(format!("holds {}, not {}; use another path", k.name(), kind.name())),
+        None if std::fs::read_dir(dir).map(|mut d| d.next().is_none()).unwrap_or(false) => Ok(()),
+        None => refuse(format!(
+            "holds {} that this tool did not write as {}; use another path, or an empty folder",
+            contents(dir),
+            kind.name()
+        )),
+    }
+}
+
+/// The kind of output a folder's marker says it holds; for a folder written before markers
+/// existed, the kind its own files show (`generator.json`, `checkpoint/`, `bundle.json`...).
+pub fn marker_kind(dir: &Path) -> Option<OutputKind> {
+    if let Ok(text) = std::fs::read_to_string(dir.join(MARKER)) {
+        return serde_json::from_str::<Marker>(&text).ok().map(|m| m.kind);
+    }
+    let has = |name: &str| dir.join(name).exists();
+    if has(".simulation") {
+        Some(OutputKind::Session)
+    } else if has("generator.json") || has("label.json") {
+        Some(OutputKind::Dataset)
+    } else if has("bundle.json") {
+        Some(OutputKind::Bundle)
+    } else if has("checkpoint") || has("checkpoint.old") {
+        Some(OutputKind::Run)
+    } else if has("stats.json") && has("errors.csv") {
+        Some(OutputKind::Evaluation)
+    } else {
+        None
+    }
+}
+
+/// Leaves the marker of `kind` in `dir` (written atomically).
+pub fn mark(dir: &Path, kind: OutputKind) -> Result<(), OutputError> {
+    let text = serde_json::to_string(&Marker { kind }).expect("marker serialises");
+    crate::fs::write_atomic(&dir.join(MARKER), text.as_bytes())
+        .map_err(|e| OutputError { path: e.path, why: e.source.to_string() })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_new_empty_or_same_kind_folders_are_claimed() {
+        let tmp = tempfile::tempdir().unwrap();
+        let new = tmp.path().join("new");
+        claim_dir(&new, OutputKind::Bundle, &[]).unwrap();
+        assert_eq!(marker_kind(&new), Some(OutputKind::Bundle));
+        claim_dir(&new, OutputKind::Bundle, &[]).unwrap();
+        let e = claim_dir(&new, OutputKind::Dataset, &[]).unwrap_err().to_string();
+        assert!(e.contains("new") && e.contains("holds a bundle, not a dataset"), "{e}");
+
+        let empty = tmp.path().join("empty");
+        std::fs::create_dir(&empty).unwrap();
+        claim_dir(&empty, OutputKind::Run, &[]).unwrap();
+
+        let theirs = tmp.path().join("theirs");
+        std::fs::create_dir(&theirs).unwrap();
+        std::fs::write(theirs.join("thesis.tex"), b"years of work").unwrap();
+        let e = check_dir(&theirs, OutputKind::Bundle, &[]).unwrap_err().to_string();
+        assert!(e.contains("theirs") && e.contains("1 entry (thesis.tex)"), "{e}");
+        assert!(theirs.join("thesis.tex").is_file());
+
+        let file = tmp.path().join("f");
+        std::fs::write(&file, b"x").unwrap();
+        assert!(check_dir(&file, OutputKind::Evaluation, &[]).unwrap_err().to_string().contains("is a file"));
+    }
+
+    #[test]
+    fn an_input_or_a_folder_holding_one_is_refused() {
+        let tmp = tempfile::tempdir().unwrap();
+        let run = tmp.path().join("run");
+        claim_dir(&run, OutputKind::Run, &[]).unwrap();
+        // `export --run R --out R`: the same folder, spelt differently.
+        let same = tmp.path().join("x/../run");
+        let e = check_dir(&same, OutputKind::Bundle, &[&run]).unwrap_err().to_string();
+        assert!(e.contains("is also an input"), "{e}");
+        let e = check_dir(tmp.path(), OutputKind::Work, &[&run]).unwrap_err().to_string();
+        assert!(e.contains("holds an input"), "{e}");
+        // A bundle inside a run folder is fine: nothing of the run is replaced.
+        check_dir(&run.join("bundle"), OutputKind::Bundle, &[&run]).unwrap();
+
+        let image = tmp.path().join("f.png");
+        std::fs::write(&image, b"png").unwrap();
+        let e = check_file(&tmp.path().join("./f.png"), &[&image]).unwrap_err().to_string();
+        assert!(e.contains("is also an input"), "{e}");
+        check_file(&tmp.path().join("d.png"), &[&image]).unwrap();
+        assert!(check_distinct(&[&image, &tmp.path().join("f.png")]).is_err());
+    }
+}
