@@ -33,6 +33,62 @@ pub struct ImageErrors {
     /// The zero predictor's over true contact pixels (mm); NaN without contact.
     pub zero_contact_l1_mm: f64,
     pub contact_pixels: usize,
+    /// Mean absolute error over the contact boundary: useful pixels within [`BOUNDARY_PX`] of
+    /// a true contact edge (mm), where a blurred prediction errs most; NaN without an edge.
+    pub boundary_l1_mm: f64,
+    /// The zero predictor's over the same pixels (mm).
+    pub zero_boundary_l1_mm: f64,
+    pub boundary_pixels: usize,
+}
+
+/// Crop pixels on either side of a true contact edge that count as the contact boundary.
+pub const BOUNDARY_PX: usize = 3;
+
+/// The contact boundary of a square depth map (row-major, side `size`): pixels within
+/// `radius` (Chebyshev distance) of a pixel whose contact state differs from one of its four
+/// neighbours'. Two running-window passes, linear in the pixel count.
+pub fn boundary_band(true_mm: &[f32], size: usize, radius: usize) -> Vec<bool> {
+    let contact = |i: usize| true_mm[i] > CONTACT_THRESHOLD_MM;
+    let mut edge = vec![false; size * size];
+    for y in 0..size {
+        for x in 0..size {
+            let i = y * size + x;
+            let c = contact(i);
+            let right = x + 1 < size && contact(i + 1) != c;
+            let down = y + 1 < size && contact(i + size) != c;
+            if right {
+                edge[i] = true;
+                edge[i + 1] = true;
+            }
+            if down {
+                edge[i] = true;
+                edge[i + size] = true;
+            }
+        }
+    }
+    // Dilate along rows, then along columns: a window of 2 radius + 1 holds an edge pixel.
+    let dilate = |src: &[bool], stride: usize, step: usize| -> Vec<bool> {
+        let mut out = vec![false; size * size];
+        for line in 0..size {
+            let at = |k: usize| line * stride + k * step;
+            let mut count = 0usize;
+            for k in 0..size.min(radius + 1) {
+                count += src[at(k)] as usize;
+            }
+            for k in 0..size {
+                out[at(k)] = count > 0;
+                if k + radius + 1 < size {
+                    count += src[at(k + radius + 1)] as usize;
+                }
+                if k >= radius {
+                    count -= src[at(k - radius)] as usize;
+                }
+            }
+        }
+        out
+    };
+    let rows = dilate(&edge, size, 1);
+    dilate(&rows, 1, size)
 }
 
 impl ImageErrors {
@@ -54,8 +110,21 @@ impl ImageErrors {
                 czero += t as f64;
             }
         }
+        let size = (true_mm.len() as f64).sqrt() as usize;
+        let (mut nb, mut bl1, mut bzero) = (0usize, 0f64, 0f64);
+        if size * size == true_mm.len() && nc > 0 {
+            let band = boundary_band(true_mm, size, BOUNDARY_PX);
+            for (((&p, &t), &m), &b) in pred_mm.iter().zip(true_mm).zip(mask).zip(&band) {
+                if m && b {
+                    nb += 1;
+                    bl1 += (p - t).abs() as f64;
+                    bzero += t.abs() as f64;
+                }
+            }
+        }
         let n = n.max(1) as f64;
         let per_contact = |s: f64| if nc > 0 { s / nc as f64 } else { f64::NAN };
+        let per_boundary = |s: f64| if nb > 0 { s / nb as f64 } else { f64::NAN };
         ImageErrors {
             id,
             split: split.to_string(),
@@ -65,6 +134,9 @@ impl ImageErrors {
             zero_l1_mm: zero / n,
             zero_contact_l1_mm: per_contact(czero),
             contact_pixels: nc,
+            boundary_l1_mm: per_boundary(bl1),
+            zero_boundary_l1_mm: per_boundary(bzero),
+            boundary_pixels: nb,
         }
     }
 }
@@ -122,14 +194,17 @@ pub fn quantile(sorted: &[f64], q: f64) -> f64 {
     if i + 1 < sorted.len() { sorted[i] * (1.0 - f) + sorted[i + 1] * f } else { sorted[i] }
 }
 
-/// `stats.json` for one split.
+/// `stats.json` for one split: contact first (where the sensor is pressed), then the paper's
+/// useful-pixel figures, then the contact boundary.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct SplitStats {
-    pub l1_mm: Summary,
-    pub l2_mm: Summary,
     pub contact_l1_mm: Summary,
-    pub zero_l1_mm: Summary,
     pub zero_contact_l1_mm: Summary,
+    pub l1_mm: Summary,
+    pub zero_l1_mm: Summary,
+    pub l2_mm: Summary,
+    pub boundary_l1_mm: Summary,
+    pub zero_boundary_l1_mm: Summary,
     /// Frames the contact gate answered without running the network.
     pub skipped_frames: usize,
 }
@@ -138,13 +213,34 @@ impl SplitStats {
     pub fn of(images: &[ImageErrors], skipped_frames: usize) -> Self {
         let s = |f: fn(&ImageErrors) -> f64| Summary::of(images.iter().map(f));
         SplitStats {
-            l1_mm: s(|e| e.l1_mm),
-            l2_mm: s(|e| e.l2_mm),
             contact_l1_mm: s(|e| e.contact_l1_mm),
-            zero_l1_mm: s(|e| e.zero_l1_mm),
             zero_contact_l1_mm: s(|e| e.zero_contact_l1_mm),
+            l1_mm: s(|e| e.l1_mm),
+            zero_l1_mm: s(|e| e.zero_l1_mm),
+            l2_mm: s(|e| e.l2_mm),
+            boundary_l1_mm: s(|e| e.boundary_l1_mm),
+            zero_boundary_l1_mm: s(|e| e.zero_boundary_l1_mm),
             skipped_frames,
         }
+    }
+
+    /// Contact L1 as a fraction of the zero predictor's (1: no better than answering zero).
+    pub fn contact_ratio(&self) -> f64 {
+        self.contact_l1_mm.mean / self.zero_contact_l1_mm.mean
+    }
+
+    /// The split's headline: contact L1 and its ratio to zeros, useful-pixel L1, boundary L1.
+    pub fn headline(&self) -> String {
+        format!(
+            "contact L1 {:.4} mm ({:.2} of zeros' {:.4}), L1 {:.4} mm (zeros {:.4}), boundary L1 {:.4} mm (zeros {:.4})",
+            self.contact_l1_mm.mean,
+            self.contact_ratio(),
+            self.zero_contact_l1_mm.mean,
+            self.l1_mm.mean,
+            self.zero_l1_mm.mean,
+            self.boundary_l1_mm.mean,
+            self.zero_boundary_l1_mm.mean
+        )
     }
 }
 
@@ -194,19 +290,33 @@ pub fn evaluate_dataset(
         }
         let s = SplitStats::of(&errors, skipped);
         println!(
-            "{name:5}: {} images, L1 {:.4} mm (zeros {:.4}), contact L1 {:.4} mm (zeros {:.4}), L2 {:.5} mm^2; {skipped} frames without contact",
-            s.l1_mm.n, s.l1_mm.mean, s.zero_l1_mm.mean, s.contact_l1_mm.mean, s.zero_contact_l1_mm.mean, s.l2_mm.mean
+            "{name:5}: {} images, {}, L2 {:.5} mm^2; {skipped} frames without contact",
+            s.l1_mm.n,
+            s.headline(),
+            s.l2_mm.mean
         );
         groups.push((name, errors.iter().map(|e| e.l1_mm).collect::<Vec<_>>()));
         stats.insert(name.to_string(), s);
         rows.extend(errors);
     }
     let stats_json = serde_json::to_string_pretty(&stats)?;
-    let mut csv = String::from("id,split,l1_mm,l2_mm,contact_l1_mm,zero_l1_mm,zero_contact_l1_mm,contact_pixels\n");
+    let mut csv = String::from(
+        "id,split,contact_l1_mm,zero_contact_l1_mm,contact_pixels,l1_mm,zero_l1_mm,l2_mm,boundary_l1_mm,zero_boundary_l1_mm,boundary_pixels\n",
+    );
     for e in &rows {
         csv += &format!(
-            "{},{},{},{},{},{},{},{}\n",
-            e.id, e.split, e.l1_mm, e.l2_mm, e.contact_l1_mm, e.zero_l1_mm, e.zero_contact_l1_mm, e.contact_pixels
+            "{},{},{},{},{},{},{},{},{},{},{}\n",
+            e.id,
+            e.split,
+            e.contact_l1_mm,
+            e.zero_contact_l1_mm,
+            e.contact_pixels,
+            e.l1_mm,
+            e.zero_l1_mm,
+            e.l2_mm,
+            e.boundary_l1_mm,
+            e.zero_boundary_l1_mm,
+            e.boundary_pixels
         );
     }
     let groups: Vec<(&str, Vec<f64>)> = groups.into_iter().collect();
@@ -241,6 +351,45 @@ mod tests {
         assert_eq!(e.contact_pixels, 2);
         let none = ImageErrors::of(4, "test", &[0.0; 2], &[0.0; 2], &[true; 2]);
         assert!(none.contact_l1_mm.is_nan() && none.l1_mm == 0.0);
+    }
+
+    #[test]
+    fn the_boundary_of_a_square_patch_is_a_ring() {
+        // A 10x10 contact patch at [5, 15) in a 20x20 map: its edge pixels are its own outer ring
+        // and the ring around it less that ring's four corners (they touch the patch diagonally
+        // only); within 1 px of them lie rows and columns 3..=16, less the inside 7..=12 and the
+        // four outermost corners.
+        let size = 20;
+        let mut truth = vec![0f32; size * size];
+        for y in 5..15 {
+            for x in 5..15 {
+                truth[y * size + x] = 1.0;
+            }
+        }
+        let band = boundary_band(&truth, size, 1);
+        assert_eq!(band.iter().filter(|&&b| b).count(), 14 * 14 - 6 * 6 - 4);
+        assert!(band[3 * size + 4] && band[16 * size + 15] && !band[3 * size + 3] && !band[2 * size + 5]);
+        assert!(!band[10 * size + 10] && band[7 * size + 6] && !band[7 * size + 7]);
+        assert_eq!(
+            boundary_band(&truth, size, 0).iter().filter(|&&b| b).count(),
+            10 * 10 - 8 * 8 + 12 * 12 - 10 * 10 - 4
+        );
+        // A prediction right inside and outside but 0.5 mm off on the edge pixels' band.
+        let mut pred = truth.clone();
+        let band3 = boundary_band(&truth, size, BOUNDARY_PX);
+        for (p, &b) in pred.iter_mut().zip(&band3) {
+            if b {
+                *p += 0.5;
+            }
+        }
+        let e = ImageErrors::of(1, "test", &pred, &truth, &vec![true; size * size]);
+        assert!((e.boundary_l1_mm - 0.5).abs() < 1e-6, "{e:?}");
+        assert_eq!(e.boundary_pixels, band3.iter().filter(|&&b| b).count());
+        // Zeros err by the true depth on the band: 1 mm on its contact half, 0 outside.
+        let inside = band3.iter().zip(&truth).filter(|&(&b, &t)| b && t > 0.0).count();
+        assert!((e.zero_boundary_l1_mm - inside as f64 / e.boundary_pixels as f64).abs() < 1e-9);
+        let flat = ImageErrors::of(2, "test", &[0.0; 16], &[0.0; 16], &[true; 16]);
+        assert!(flat.boundary_l1_mm.is_nan() && flat.boundary_pixels == 0);
     }
 
     #[test]

@@ -317,7 +317,9 @@ mod tests {
             seeds: vec![b"1234".to_vec()],
             check,
         };
-        let limit = Duration::from_millis(300);
+        // Generous for the panics (printing a backtrace can take a second on a loaded machine),
+        // short for the hang.
+        let limit = Duration::from_secs(20);
         let panics =
             target(Arc::new(|_: &Path, b: &[u8]| if b == b"1234" { Outcome::Accepted } else { panic!("boom") }));
         let t = run_target(&panics, 0, 0..3, limit);
@@ -325,11 +327,11 @@ mod tests {
         assert!(t.failures[0].what.contains("panicked: boom"), "{:?}", t.failures[0]);
         let hangs = target(Arc::new(|_: &Path, b: &[u8]| {
             if b != b"1234" {
-                std::thread::sleep(Duration::from_secs(2));
+                std::thread::sleep(Duration::from_secs(6));
             }
             Outcome::Accepted
         }));
-        let t = run_target(&hangs, 0, 0..3, limit);
+        let t = run_target(&hangs, 0, 0..3, Duration::from_secs(1));
         assert_eq!((t.failures.len(), t.cases), (1, 1), "a hang stops the target");
         assert!(t.failures[0].what.contains("no answer"));
         let anonymous = target(Arc::new(|p: &Path, b: &[u8]| {
