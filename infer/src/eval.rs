@@ -194,6 +194,10 @@ pub fn quantile(sorted: &[f64], q: f64) -> f64 {
     if i + 1 < sorted.len() { sorted[i] * (1.0 - f) + sorted[i + 1] * f } else { sorted[i] }
 }
 
+/// The keys of each split's figures in `stats.json`, in the order [`SplitStats`] writes them.
+pub const STAT_KEYS: [&str; 7] =
+    ["contact_l1_mm", "zero_contact_l1_mm", "l1_mm", "zero_l1_mm", "l2_mm", "boundary_l1_mm", "zero_boundary_l1_mm"];
+
 /// `stats.json` for one split: contact first (where the sensor is pressed), then the paper's
 /// useful-pixel figures, then the contact boundary.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -390,6 +394,15 @@ mod tests {
         assert!((e.zero_boundary_l1_mm - inside as f64 / e.boundary_pixels as f64).abs() < 1e-9);
         let flat = ImageErrors::of(2, "test", &[0.0; 16], &[0.0; 16], &[true; 16]);
         assert!(flat.boundary_l1_mm.is_nan() && flat.boundary_pixels == 0);
+    }
+
+    #[test]
+    fn stat_keys_are_the_written_ones() {
+        let stats = SplitStats::of(&[ImageErrors::of(1, "test", &[0.0; 4], &[1.0; 4], &[true; 4])], 0);
+        let json = serde_json::to_value(&stats).unwrap();
+        let keys: Vec<&String> = json.as_object().unwrap().keys().filter(|k| *k != "skipped_frames").collect();
+        assert_eq!(keys.len(), STAT_KEYS.len());
+        assert!(STAT_KEYS.iter().all(|k| json[*k]["mean"].is_number() || json[*k]["n"] == 0), "{json}");
     }
 
     #[test]

@@ -255,15 +255,7 @@ fn eval_writes_statistics_per_split_errors_and_a_violin_plot() {
         serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
     let mut n = 0;
     for split in ["train", "test"] {
-        for key in [
-            "contact_l1_mm",
-            "zero_contact_l1_mm",
-            "l1_mm",
-            "zero_l1_mm",
-            "l2_mm",
-            "boundary_l1_mm",
-            "zero_boundary_l1_mm",
-        ] {
+        for key in infer::eval::STAT_KEYS {
             assert!(stats[split][key]["mean"].is_number(), "{split}.{key}: {}", stats[split][key]);
         }
         n += stats[split]["l1_mm"]["n"].as_u64().unwrap();

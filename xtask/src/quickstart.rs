@@ -228,15 +228,7 @@ fn check_outputs(out: &Path) -> Result<()> {
     )
     .with_context(|| format!("{}: not JSON", stats_path.display()))?;
     for split in ["train", "test"] {
-        for key in [
-            "contact_l1_mm",
-            "zero_contact_l1_mm",
-            "l1_mm",
-            "zero_l1_mm",
-            "l2_mm",
-            "boundary_l1_mm",
-            "zero_boundary_l1_mm",
-        ] {
+        for key in infer::eval::STAT_KEYS {
             ensure!(stats[split][key]["mean"].is_number(), "{}: no {split}.{key}.mean", stats_path.display());
         }
     }
