@@ -4,6 +4,12 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+mod common;
+use common::files;
+
+/// The folders whose files make up a dataset here.
+const DATASET_FILES: [&str; 3] = ["", "samples", "depth"];
+
 const BIN: &str = env!("CARGO_BIN_EXE_dataset");
 
 fn generate(out: &Path, count: u32, extra: &[&str]) -> std::process::Output {
@@ -12,19 +18,6 @@ fn generate(out: &Path, count: u32, extra: &[&str]) -> std::process::Output {
         .args(extra)
         .output()
         .unwrap()
-}
-
-fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut out = Vec::new();
-    for sub in ["", "samples", "depth"] {
-        let mut names: Vec<_> =
-            std::fs::read_dir(dir.join(sub)).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_file()).collect();
-        names.sort();
-        out.extend(
-            names.into_iter().map(|p| (p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap())),
-        );
-    }
-    out
 }
 
 #[test]
@@ -72,7 +65,7 @@ fn killed_and_resumed_run_equals_an_uninterrupted_one() {
 
     let fresh = generate(&b, count, &[]);
     assert!(fresh.status.success());
-    let (fa, fb) = (files(&a), files(&b));
+    let (fa, fb) = (files(&a, &DATASET_FILES), files(&b, &DATASET_FILES));
     assert_eq!(fa.len(), fb.len());
     // generator.json, manifest.json and the output marker, then a record and a depth map a sample.
     assert_eq!(fa.len(), 3 + 2 * count as usize);

@@ -10,6 +10,12 @@ use std::time::{Duration, Instant};
 use formats::dataset::Manifest;
 use sensor::DepthMap;
 
+mod common;
+use common::files;
+
+/// The folders whose files make up a dataset here.
+const DATASET_FILES: [&str; 5] = ["", "samples", "depth", "images", "unit"];
+
 const BIN: &str = env!("CARGO_BIN_EXE_dataset");
 
 fn dataset(args: &[&str]) -> Output {
@@ -43,19 +49,6 @@ fn label(session: &Path, sensor: &Path, out: &Path, extra: &[&str]) -> Output {
     let mut args = vec!["label", "--session", s(session), "--sensor", s(sensor), "--out", s(out)];
     args.extend(extra);
     dataset(&args)
-}
-
-fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut out = Vec::new();
-    for sub in ["", "samples", "depth", "images", "unit"] {
-        let mut names: Vec<_> =
-            std::fs::read_dir(dir.join(sub)).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_file()).collect();
-        names.sort();
-        out.extend(
-            names.into_iter().map(|p| (p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap())),
-        );
-    }
-    out
 }
 
 #[test]
@@ -236,7 +229,10 @@ fn a_labelling_killed_at_any_moment_resumes_to_the_same_dataset() {
     assert!(!b.join("manifest.json").exists(), "the labelling finished before it could be killed");
     let report = ok(label(&session, &sensor, &b, &[]));
     assert!(report.contains("from an earlier run"), "{report}");
-    assert!(files(&a) == files(&b), "a resumed labelling writes exactly the uninterrupted one's files");
+    assert!(
+        files(&a, &DATASET_FILES) == files(&b, &DATASET_FILES),
+        "a resumed labelling writes exactly the uninterrupted one's files"
+    );
     // Lifted frames: no contact in the ground truth, and none in the image either.
     assert!(report.contains("have no contact"), "{report}");
     assert!(!report.contains("logging slip"), "{report}");
