@@ -263,7 +263,7 @@ impl<'a> Run<'a> {
             let s = &self.state;
             if s.batch < n_batches && s.global_step.is_multiple_of(config.checkpoint_every) && self.bad_run == 0 {
                 // A checkpoint is only ever a good one: weights that diverged stop the run instead.
-                self.refuse_divergence(&self.net.valid(), 0.0)?;
+                self.refuse_divergence(&self.net.valid(), None)?;
                 checkpoint::save(self.dir, &self.net, &self.optim, &self.state)?;
             }
         }
@@ -303,17 +303,14 @@ impl<'a> Run<'a> {
 
     /// Stops the run, keeping the last checkpoint (which is good: none is written from
     /// weights that fail this), when the weights hold NaN or infinite values or the validation
-    /// loss is not finite.
-    fn refuse_divergence(&self, net: &DenseDepth, val_loss: f64) -> Result<()> {
-        let bad = model::bundle::non_finite_tensors(net);
-        if bad.is_none() && val_loss.is_finite() {
-            return Ok(());
-        }
-        let what = match bad {
-            Some(names) => {
+    /// loss, where there is one (`None` between epochs), is not finite.
+    fn refuse_divergence(&self, net: &DenseDepth, val_loss: Option<f64>) -> Result<()> {
+        let what = match (model::bundle::non_finite_tensors(net), val_loss) {
+            (Some(names), _) => {
                 format!("{} tensor(s) of the weights hold NaN or infinite values ({})", names.len(), names[0])
             }
-            None => format!("the validation loss is {val_loss}"),
+            (None, Some(loss)) if !loss.is_finite() => format!("the validation loss is {loss}"),
+            (None, _) => return Ok(()),
         };
         bail!("training diverged by step {}: {what}; {}", self.state.global_step, self.last_checkpoint())
     }
@@ -342,7 +339,7 @@ impl<'a> Run<'a> {
         let net = self.net.valid();
         let split = if self.config.val_fraction > 0.0 { "validation" } else { "test" };
         let val = validate(&net, &self.val, &self.batcher, self.config.batch, device, self.config.on_bad_data, split)?;
-        self.refuse_divergence(&net, val.loss)?;
+        self.refuse_divergence(&net, Some(val.loss))?;
         let state = &mut self.state;
         for name in val.bad {
             if !state.bad_val_samples.contains(&name) {
