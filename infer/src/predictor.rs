@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 use burn::tensor::{Device, Tensor, TensorData};
 use image::RgbImage;
 use model::DenseDepth;
-use model::bundle::{BundleFile, encode_input, load_bundle};
+use model::InputEncoder;
+use model::bundle::{BundleFile, load_bundle};
 use sensor::DepthMap;
 
 #[derive(Debug, thiserror::Error)]
@@ -38,6 +39,8 @@ pub struct Predictor {
     /// The useful pixels' rays, for point clouds.
     pub rays: Vec<sensor::PixelRay>,
     pub gate: ContactGate,
+    /// Frames to the network's input (with the reference difference if the model reads it).
+    encoder: InputEncoder,
     /// Replaces the output pixels the masked loss never trained (not wholly on useful pixels)
     /// by extrapolation from the trained ones, before upsampling.
     border_fill: sensor::resample::FillPlan,
@@ -70,9 +73,12 @@ impl Predictor {
             }
             None => None,
         };
+        let encoder =
+            InputEncoder::new(file.model.input, [file.input_height_px, file.input_width_px], reference.as_ref())
+                .map_err(|e| InferError::File { path: dir.join(model::bundle::BUNDLE_JSON), message: e.to_string() })?;
         let mask = file.sensor.valid_mask();
         let rays = file.sensor.pixel_rays();
-        let out_hw = [file.input_height_px / 2, file.input_width_px / 2];
+        let out_hw = file.model.output_hw([file.input_height_px, file.input_width_px]);
         let trained = sensor::resample::covered_mask(&mask, file.sensor.crop_size_px as usize, out_hw);
         let border_fill = sensor::resample::FillPlan::new(&trained, out_hw);
         let mut predictor = Predictor {
@@ -84,6 +90,7 @@ impl Predictor {
             mask,
             rays,
             gate: ContactGate::default(),
+            encoder,
             border_fill,
             tare_mm: None,
         };
@@ -159,17 +166,19 @@ impl Predictor {
         Ok(self.depth_maps(self.net.forward(input)))
     }
 
-    /// The network's input for a batch of frames: resized, RGB, values / 255.
+    /// The network's input for a batch of frames: resized, RGB, values / 255 (and the
+    /// reference difference if the model reads it).
     pub fn input(&self, frames: &[RgbImage]) -> Result<Tensor<4>, InferError> {
         for f in frames {
             self.check(f)?;
         }
-        let (h, w) = (self.file.input_height_px, self.file.input_width_px);
-        let input: Vec<f32> = frames.iter().flat_map(|f| encode_input(f, [h, w])).collect();
-        Ok(Tensor::<4>::from_data(TensorData::new(input, [frames.len(), 3, h, w]), &self.device))
+        let [h, w] = self.encoder.hw();
+        let c = self.encoder.channels().count();
+        let input: Vec<f32> = frames.iter().flat_map(|f| self.encoder.encode(f)).collect();
+        Ok(Tensor::<4>::from_data(TensorData::new(input, [frames.len(), c, h, w]), &self.device))
     }
 
-    /// The network alone: input tensor to output tensor (network units, half resolution).
+    /// The network alone: input tensor to output tensor (network units, the model's output size).
     pub fn forward(&self, input: Tensor<4>) -> Tensor<4> {
         self.net.forward(input)
     }

@@ -6,7 +6,7 @@ use std::process::Command;
 
 use dataset::{Renderer, SensorUnit};
 use infer::Predictor;
-use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, INPUT_ENCODING, write_bundle};
+use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, write_bundle};
 use model::{DenseDepthConfig, DenseNetConfig, DepthScale};
 
 /// A bundle with an untrained tiny network for simulated unit 3, with its reference image.
@@ -21,7 +21,7 @@ fn bundle(dir: &Path) -> Renderer {
         model: DenseDepthConfig::new(DenseNetConfig::tiny()),
         input_height_px: 64,
         input_width_px: 64,
-        input_encoding: INPUT_ENCODING.into(),
+        input_encoding: model::InputChannels::Rgb.encoding().into(),
         depth_scale: DepthScale::paper(unit.sensor.max_depth_mm as f32),
         sensor: unit.sensor.clone(),
         reference_image: None,
@@ -310,4 +310,53 @@ fn outputs_spare_inputs_and_come_whole_or_not_at_all() {
     let e = String::from_utf8_lossy(&r.stderr);
     assert!(!r.status.success() && e.contains("no test samples"), "{e}");
     assert!(!out.exists(), "nothing is written");
+}
+
+#[test]
+fn a_reference_difference_bundle_reads_its_reference_and_predicts_at_full_resolution() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("b");
+    let unit = SensorUnit::from_seed(3, 25.0);
+    let renderer = Renderer::for_crop(&unit);
+    let device = model::backend::default_device();
+    let config = DenseDepthConfig::new(DenseNetConfig::tiny())
+        .with_input(model::InputChannels::RgbDifference)
+        .with_full_resolution(true);
+    let net = config.init(&device);
+    let file = BundleFile {
+        format_version: BUNDLE_FORMAT_VERSION,
+        model: config,
+        input_height_px: 64,
+        input_width_px: 64,
+        input_encoding: model::InputChannels::RgbDifference.encoding().into(),
+        depth_scale: DepthScale::paper(unit.sensor.max_depth_mm as f32),
+        sensor: unit.sensor.clone(),
+        reference_image: None,
+        training: None,
+        weights_sha256: Default::default(),
+    };
+    // Such a bundle is not written without the reference frame its input needs.
+    let e = write_bundle(&dir, &net, &file, None, &[]).unwrap_err().to_string();
+    assert!(e.contains("reference image") && !dir.exists(), "{e}");
+    let reference_frame = renderer.reference_image(1);
+    write_bundle(&dir, &net, &file, Some(&sensor::frame::encode_png_rgb(&reference_frame)), &[]).unwrap();
+
+    let predictor = Predictor::load(&dir, &device).unwrap();
+    let input = predictor.input(std::slice::from_ref(&reference_frame)).unwrap();
+    assert_eq!(input.dims(), [1, 6, 64, 64]);
+    let values = input.into_data().try_to_vec::<f32>().unwrap();
+    assert!(values[3 * 64 * 64..].iter().all(|&v| v == 0.0), "the reference differs from itself by nothing");
+    assert!(values[..3 * 64 * 64].iter().any(|&v| v > 0.1), "the RGB channels come first");
+    let (_, frame) = pressed(&renderer);
+    let out = predictor.forward(predictor.input(std::slice::from_ref(&frame)).unwrap());
+    assert_eq!(out.dims(), [1, 1, 64, 64]);
+    let depth = predictor.predict_network(&[frame]).unwrap().remove(0);
+    assert_eq!(depth.size_px, unit.sensor.crop_size_px);
+
+    // A bundle whose file names no reference image is refused on loading, by name.
+    let json = dir.join(model::bundle::BUNDLE_JSON);
+    let text = std::fs::read_to_string(&json).unwrap();
+    std::fs::write(&json, text.replace("\"reference_image\": \"reference.png\"", "\"reference_image\": null")).unwrap();
+    let e = Predictor::load(&dir, &device).err().unwrap().to_string();
+    assert!(e.contains("bundle.json") && e.contains("reference"), "{e}");
 }

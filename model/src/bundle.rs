@@ -22,7 +22,7 @@ use sensor::Sensor;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
-use crate::{DenseDepth, DenseDepthConfig, DepthScale};
+use crate::{DenseDepth, DenseDepthConfig, DepthScale, InputChannels};
 
 pub const BUNDLE_FORMAT_VERSION: u32 = 1;
 pub const BUNDLE_JSON: &str = "bundle.json";
@@ -40,7 +40,8 @@ pub struct BundleFile {
     /// Network input (the crop is resized to it); output is half of each side.
     pub input_height_px: usize,
     pub input_width_px: usize,
-    /// Input pixels: RGB, each channel divided by 255, no mean or deviation subtracted.
+    /// Input pixels: `InputChannels::encoding` of the model's input (RGB, each channel divided
+    /// by 255, no mean or deviation subtracted; then, if used, the reference difference).
     pub input_encoding: String,
     pub depth_scale: DepthScale,
     pub sensor: Sensor,
@@ -82,23 +83,6 @@ pub fn non_finite_tensors(model: &DenseDepth) -> Option<Vec<String>> {
 fn some_names(names: &[String]) -> String {
     let shown = names.iter().take(5).cloned().collect::<Vec<_>>().join(", ");
     if names.len() > 5 { format!("{shown} and {} more", names.len() - 5) } else { shown }
-}
-
-/// The input encoding every bundle of this version uses.
-pub const INPUT_ENCODING: &str = "rgb/255";
-
-/// A sensor crop as the network's input ([`INPUT_ENCODING`]): resized to `[h, w]` (triangle
-/// filter), channel-major R, G, B planes, values / 255. Training and inference both call this,
-/// so the two cannot drift apart.
-pub fn encode_input(img: &image::RgbImage, [h, w]: [usize; 2]) -> Vec<f32> {
-    let small = image::imageops::resize(img, w as u32, h as u32, image::imageops::FilterType::Triangle);
-    let mut input = vec![0f32; 3 * h * w];
-    for (k, px) in small.pixels().enumerate() {
-        for c in 0..3 {
-            input[c * h * w + k] = px.0[c] as f32 / 255.0;
-        }
-    }
-    input
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -168,8 +152,25 @@ impl BundleFile {
         }
         file.model.check().map_err(|e| err(path, format!("model: {e}")))?;
         file.depth_scale.check().map_err(|e| err(path, format!("depth_scale: {e}")))?;
-        if file.input_encoding != INPUT_ENCODING {
-            return Err(err(path, format!("unknown input encoding {:?}", file.input_encoding)));
+        match InputChannels::from_encoding(&file.input_encoding) {
+            None => return Err(err(path, format!("unknown input encoding {:?}", file.input_encoding))),
+            Some(c) if c != file.model.input => {
+                return Err(err(
+                    path,
+                    format!(
+                        "input encoding {:?} does not match the model's input ({})",
+                        file.input_encoding,
+                        file.model.input.name()
+                    ),
+                ));
+            }
+            Some(c) if c.needs_reference() && file.reference_image.is_none() => {
+                return Err(err(
+                    path,
+                    format!("the model's input ({}) needs a reference image and the bundle names none", c.name()),
+                ));
+            }
+            Some(_) => {}
         }
         Ok(file)
     }
@@ -186,6 +187,12 @@ pub fn write_bundle(
     inputs: &[&Path],
 ) -> Result<(), BundleError> {
     formats::output::check_dir(dir, OutputKind::Bundle, inputs).map_err(|e| err(&e.path, e.why))?;
+    if file.model.input.needs_reference() && reference_png.is_none() {
+        return Err(err(
+            dir,
+            format!("not written: the model's input ({}) needs the unit's reference image", file.model.input.name()),
+        ));
+    }
     if let Some(names) = non_finite_tensors(model) {
         return Err(err(
             dir,
@@ -195,6 +202,7 @@ pub fn write_bundle(
     formats::fs::write_dir_atomic(dir, |tmp| {
         let mut file = file.clone();
         file.reference_image = reference_png.map(|_| REFERENCE_PNG.to_string());
+        file.input_encoding = file.model.input.encoding().to_string();
         if let Some(bytes) = reference_png {
             std::fs::write(tmp.join(REFERENCE_PNG), bytes).map_err(|e| err(&tmp.join(REFERENCE_PNG), e))?;
         }
@@ -258,7 +266,7 @@ mod tests {
             model: DenseDepthConfig::new(DenseNetConfig::tiny()),
             input_height_px: 64,
             input_width_px: 64,
-            input_encoding: INPUT_ENCODING.into(),
+            input_encoding: InputChannels::Rgb.encoding().into(),
             depth_scale: DepthScale::paper(9.4),
             sensor: Sensor::default(),
             reference_image: None,

@@ -5,6 +5,7 @@
 //! - `network`: the Burn modules, readable on their own; their layers call
 //! - `kernels`: the flex CPU kernels (matrix-product convolutions, fused dense blocks, batch
 //!   norms, pooling, upsampling), through one small interface; private to this crate;
+//! - `input`: crops to the network's input (RGB, optionally the reference difference);
 //! - `bundle`, `import`, `tensor_file`: files in and out;
 //! - `loss`, `scale`: the training loss and the mm <-> network depth scale;
 //! - `backend`: devices by name.
@@ -14,12 +15,14 @@
 pub mod backend;
 pub mod bundle;
 pub mod import;
+pub mod input;
 mod kernels;
 pub mod loss;
 mod network;
 pub mod scale;
 pub mod tensor_file;
 
+pub use input::{InputChannels, InputEncoder};
 pub use loss::{DepthLoss, DepthLossConfig};
 pub use network::{
     Activation, Decoder, DenseBlock, DenseDepth, DenseDepthConfig, DenseLayer, DenseNetConfig, DenseNetEncoder, Skips,

@@ -23,14 +23,24 @@ pub struct DepthLossConfig {
     /// SSIM's `L`: the width of the target's value range (990 for 10..1000).
     #[config(default = 990.0)]
     pub dynamic_range: f64,
+    /// Weight of an extra L1 term over contact pixels only (target above `contact_above`), in
+    /// the L1 term's units: where the sensor is pressed is a small part of each map, and the
+    /// part a user needs. Default 0: DenseDepth's loss.
+    #[config(default = 0.0)]
+    pub contact_weight: f64,
+    /// Target value (network units) above which a pixel counts as contact.
+    #[config(default = 0.0)]
+    pub contact_above: f64,
 }
 
-/// The loss and its three terms (each a scalar tensor).
+/// The loss and its terms (each a scalar tensor).
 pub struct DepthLoss {
     pub total: Tensor<1>,
     pub ssim: Tensor<1>,
     pub gradient: Tensor<1>,
     pub l1: Tensor<1>,
+    /// Mean absolute error over contact pixels (zero where a batch has none).
+    pub contact_l1: Tensor<1>,
 }
 
 /// 1 where the whole 11x11 window around a pixel lies in `mask` ([N, 1, H - 10, W - 10]), so that
@@ -73,6 +83,11 @@ impl DepthLossConfig {
         assert!(h >= WINDOW && w >= WINDOW, "SSIM needs at least {WINDOW}x{WINDOW} pixels, got {h}x{w}");
         let count = (n * h * w) as f32;
         let diff = pred.clone() - target.clone();
+        let mut contact = target.clone().greater_elem(self.contact_above as f32).float().cast(DType::F32);
+        if let Some(m) = &mask {
+            contact = contact * m.clone().cast(DType::F32);
+        }
+        let contact_l1 = sum32(diff.clone().abs().cast(DType::F32) * contact.clone()) / sum32(contact).clamp_min(1.0);
         let dy = |x: Tensor<4>| x.clone().slice([0..n, 0..1, 1..h, 0..w]) - x.slice([0..n, 0..1, 0..h - 1, 0..w]);
         let dx = |x: Tensor<4>| x.clone().slice([0..n, 0..1, 0..h, 1..w]) - x.slice([0..n, 0..1, 0..h, 0..w - 1]);
         let (ey, ex) = ((dy(pred.clone()) - dy(target.clone())).abs(), (dx(pred.clone()) - dx(target.clone())).abs());
@@ -104,7 +119,12 @@ impl DepthLossConfig {
         let total = ssim.clone().mul_scalar(self.ssim_weight)
             + gradient.clone().mul_scalar(self.gradient_weight)
             + l1.clone().mul_scalar(self.l1_weight);
-        DepthLoss { total, ssim, gradient, l1 }
+        let total = if self.contact_weight > 0.0 {
+            total + contact_l1.clone().mul_scalar(self.contact_weight * self.l1_weight)
+        } else {
+            total
+        };
+        DepthLoss { total, ssim, gradient, l1, contact_l1 }
     }
 
     /// Per-window SSIM ([N, 1, H - 10, W - 10]), computed on values divided by `L`.
@@ -123,5 +143,52 @@ impl DepthLossConfig {
         let num = (mp.clone() * mt.clone()).mul_scalar(2.0).add_scalar(c1) * spt.mul_scalar(2.0).add_scalar(c2);
         let den = (mp.clone() * mp + mt.clone() * mt).add_scalar(c1) * (spp + stt).add_scalar(c2);
         num / den
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 12x12 map of zeros with a 4x4 contact patch of depth 5; the prediction is off by 1 on
+    /// the patch and by 0.5 on two untouched pixels.
+    fn patch_case(device: &burn::tensor::Device) -> (Tensor<4>, Tensor<4>) {
+        let (h, w) = (12, 12);
+        let mut target = vec![0f32; h * w];
+        let mut pred = vec![0f32; h * w];
+        for y in 4..8 {
+            for x in 4..8 {
+                target[y * w + x] = 5.0;
+                pred[y * w + x] = 6.0;
+            }
+        }
+        pred[0] = 0.5;
+        pred[1] = 0.5;
+        let t = |v: Vec<f32>| Tensor::<4>::from_data(TensorData::new(v, [1, 1, h, w]), device);
+        (t(pred), t(target))
+    }
+
+    #[test]
+    fn the_contact_term_is_the_mean_error_over_contact_pixels_and_adds_to_the_total() {
+        let device = crate::backend::default_device();
+        let (pred, target) = patch_case(&device);
+        let scalar = |t: Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap()[0];
+        let plain = DepthLossConfig::new();
+        let weighted = DepthLossConfig::new().with_contact_weight(3.0).with_contact_above(0.1);
+        let a = plain.forward(pred.clone(), target.clone());
+        let b = weighted.forward(pred.clone(), target.clone());
+        // Sixteen contact pixels each off by 1; the two untouched misses do not count.
+        assert!((scalar(b.contact_l1.clone()) - 1.0).abs() < 1e-6);
+        let (ta, tb) = (scalar(a.total), scalar(b.total));
+        assert!((tb - ta - 3.0 * 0.1 * 1.0).abs() < 1e-5, "{ta} {tb}");
+        // A mask that leaves out half the patch leaves the mean over the rest unchanged, and
+        // a map without contact gives zero, not a NaN.
+        let mut m = vec![1f32; 144];
+        (0..12).for_each(|y| (0..6).for_each(|x| m[y * 12 + x] = 0.0));
+        let mask = Tensor::<4>::from_data(TensorData::new(m, [1, 1, 12, 12]), &device);
+        let c = weighted.forward_masked(pred.clone(), target.clone(), Some(mask));
+        assert!((scalar(c.contact_l1) - 1.0).abs() < 1e-6);
+        let none = weighted.forward(pred.clone(), Tensor::zeros([1, 1, 12, 12], &device));
+        assert_eq!(scalar(none.contact_l1), 0.0);
     }
 }

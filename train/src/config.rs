@@ -68,6 +68,10 @@ pub struct FitConfig {
     /// test split is measured each epoch and the last epoch is kept.
     #[serde(default)]
     pub val_fraction: f64,
+    /// Weight of the training loss's extra L1 term over contact pixels (see
+    /// `model::DepthLossConfig::contact_weight`). Default 0: DenseDepth's loss.
+    #[serde(default)]
+    pub contact_weight: f64,
 }
 
 fn one() -> f64 {
@@ -106,6 +110,7 @@ impl FitConfig {
             schedule: Schedule::Constant,
             warmup_steps: 0,
             val_fraction: 0.1,
+            contact_weight: 0.0,
         }
     }
 
@@ -132,6 +137,12 @@ impl FitConfig {
             self.train_fraction.to_string(),
         )?;
         check((0.0..1.0).contains(&self.val_fraction), "--val-fraction", "in [0, 1)", self.val_fraction.to_string())?;
+        check(
+            self.contact_weight.is_finite() && self.contact_weight >= 0.0,
+            "--contact-weight",
+            "a finite number at least 0",
+            self.contact_weight.to_string(),
+        )?;
         let [lo, hi] = self.net_range;
         check(
             lo.is_finite() && hi.is_finite() && lo < hi,
@@ -172,7 +183,8 @@ mod tests {
         let c = FitConfig::new("d".into(), [64, 64]);
         c.validate().unwrap();
         assert_eq!((c.val_fraction, c.batch, c.epochs), (0.1, 4, 10));
-        let cases: [(FitConfig, &str); 7] = [
+        let cases: [(FitConfig, &str); 8] = [
+            (FitConfig { contact_weight: -1.0, ..c.clone() }, "--contact-weight"),
             (FitConfig { batch: 0, ..c.clone() }, "--batch"),
             (FitConfig { epochs: 0, ..c.clone() }, "--epochs"),
             (FitConfig { lr: f64::NAN, ..c.clone() }, "--lr"),

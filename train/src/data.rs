@@ -12,7 +12,7 @@ use burn::data::dataset::Dataset;
 use burn::tensor::{Device, Tensor, TensorData};
 use formats::SplitMix64;
 use formats::dataset::{Manifest, SampleRecord, Split};
-use model::DepthScale;
+use model::{DenseDepthConfig, DepthScale, InputChannels, InputEncoder};
 use sensor::{DepthMap, Sensor};
 
 /// A bad sample: the file and what is wrong with it.
@@ -31,9 +31,9 @@ fn bad(path: &Path, message: impl std::fmt::Display) -> DataError {
 /// One training pair, ready to batch.
 #[derive(Clone, Debug)]
 pub struct DepthItem {
-    /// [3, H, W], RGB in [0, 1].
+    /// [C, H, W]: the network's input (`model::InputEncoder`).
     pub image: Vec<f32>,
-    /// [1, H/2, W/2], network units.
+    /// [1, OH, OW] (the network's output size), network units.
     pub depth: Vec<f32>,
 }
 
@@ -64,10 +64,14 @@ pub struct DepthDataset {
     pub sensor: Sensor,
     pub records: Vec<SampleRecord>,
     pub input_hw: [usize; 2],
+    /// The network's output size (half the input's unless the model says otherwise).
+    pub output_hw: [usize; 2],
     pub scale: DepthScale,
-    /// Useful pixels at the output resolution ([H/2 * W/2], 1 or 0).
+    /// Useful pixels at the output resolution ([OH * OW], 1 or 0).
     pub mask: Vec<f32>,
     reference: Option<PathBuf>,
+    /// Crops to the network's input; RGB until [`DepthDataset::set_input`] says otherwise.
+    encoder: InputEncoder,
 }
 
 impl DepthDataset {
@@ -83,7 +87,8 @@ impl DepthDataset {
             );
         }
         let sensor = manifest.sensor;
-        let mask = output_mask(&sensor, input_hw);
+        let output_hw = [input_hw[0] / 2, input_hw[1] / 2];
+        let mask = output_mask(&sensor, output_hw);
         let reference = Some(dir.join("unit/reference.png")).filter(|p| p.is_file());
         Ok(DepthDataset {
             dir: dir.to_path_buf(),
@@ -91,9 +96,51 @@ impl DepthDataset {
             sensor,
             records,
             input_hw,
+            output_hw,
             mask,
             reference,
+            encoder: InputEncoder::new(InputChannels::Rgb, input_hw, None)?,
         })
+    }
+
+    /// Items for `model`: its input channels and output size. The reference difference reads
+    /// the dataset's `unit/reference.png`, which must then be there.
+    pub fn set_model(&mut self, model: &DenseDepthConfig) -> anyhow::Result<()> {
+        self.set_input(model.input)?;
+        self.output_hw = model.output_hw(self.input_hw);
+        self.mask = output_mask(&self.sensor, self.output_hw);
+        Ok(())
+    }
+
+    /// Encodes crops for a network whose input is `channels`.
+    fn set_input(&mut self, channels: InputChannels) -> anyhow::Result<()> {
+        let reference = match (&self.reference, channels.needs_reference()) {
+            (Some(path), true) => Some(sensor::frame::read(path)?),
+            (None, true) => anyhow::bail!(
+                "{}: missing; the network's input ({}) needs the unit's reference frame",
+                self.dir.join("unit/reference.png").display(),
+                channels.name()
+            ),
+            (_, false) => None,
+        };
+        let crop = self.sensor.crop_size_px;
+        if let (Some(r), Some(path)) = (&reference, &self.reference)
+            && r.dimensions() != (crop, crop)
+        {
+            anyhow::bail!(
+                "{}: reference frame is {}x{}, the crop is {crop}x{crop}",
+                path.display(),
+                r.width(),
+                r.height()
+            );
+        }
+        self.encoder = InputEncoder::new(channels, self.input_hw, reference.as_ref())?;
+        Ok(())
+    }
+
+    /// The network input this dataset encodes.
+    pub fn input(&self) -> InputChannels {
+        self.encoder.channels()
     }
 
     pub fn dir(&self) -> &Path {
@@ -126,18 +173,17 @@ impl DepthDataset {
         if let Some(d) = depth.depth_mm.iter().find(|&&d| !(0.0..=limit).contains(&d)) {
             return Err(bad(&depth_path, format!("depth {d} mm is outside 0..{} mm", self.sensor.max_depth_mm)));
         }
-        let [h, w] = self.input_hw;
-        let mut image = model::bundle::encode_input(&img, self.input_hw);
-        if let Some(j) = jitter {
-            let mut rng = SplitMix64::new(j.seed);
-            for v in &mut image {
-                let noise = if j.noise_sd > 0.0 { rng.normal() as f32 * j.noise_sd } else { 0.0 };
-                *v = (*v * j.gain + j.offset + noise).clamp(0.0, 1.0);
+        let image = self.encoder.encode_with(&img, |planes| {
+            if let Some(j) = jitter {
+                let mut rng = SplitMix64::new(j.seed);
+                for v in planes {
+                    let noise = if j.noise_sd > 0.0 { rng.normal() as f32 * j.noise_sd } else { 0.0 };
+                    *v = (*v * j.gain + j.offset + noise).clamp(0.0, 1.0);
+                }
             }
-        }
-        let (oh, ow) = (h / 2, w / 2);
-        let half = resize_plane(&depth.depth_mm, crop as usize, [oh, ow]);
-        let depth = half.iter().map(|&d| self.scale.to_net(d)).collect();
+        });
+        let small = resize_plane(&depth.depth_mm, crop as usize, self.output_hw);
+        let depth = small.iter().map(|&d| self.scale.to_net(d)).collect();
         Ok(DepthItem { image, depth })
     }
 }
@@ -158,9 +204,9 @@ fn resize_plane(values: &[f32], side: usize, hw: [usize; 2]) -> Vec<f32> {
     sensor::resample::resize_plane(values, [side, side], hw)
 }
 
-/// Output pixels (half the input's resolution) that lie wholly on useful crop pixels.
-fn output_mask(sensor: &Sensor, [h, w]: [usize; 2]) -> Vec<f32> {
-    sensor::resample::covered_mask(&sensor.valid_mask(), sensor.crop_size_px as usize, [h / 2, w / 2])
+/// Output pixels that lie wholly on useful crop pixels.
+fn output_mask(sensor: &Sensor, output_hw: [usize; 2]) -> Vec<f32> {
+    sensor::resample::covered_mask(&sensor.valid_mask(), sensor.crop_size_px as usize, output_hw)
         .into_iter()
         .map(|m| if m { 1.0 } else { 0.0 })
         .collect()
@@ -178,19 +224,29 @@ pub struct DepthBatch {
 #[derive(Clone, Debug)]
 pub struct DepthBatcher {
     pub input_hw: [usize; 2],
+    pub output_hw: [usize; 2],
     pub mask: Vec<f32>,
+}
+
+impl DepthBatcher {
+    /// Batches of `data`'s items.
+    pub fn for_data(data: &DepthDataset) -> Self {
+        DepthBatcher { input_hw: data.input_hw, output_hw: data.output_hw, mask: data.mask.clone() }
+    }
 }
 
 impl Batcher<DepthItem, DepthBatch> for DepthBatcher {
     fn batch(&self, items: Vec<DepthItem>, device: &Device) -> DepthBatch {
         let n = items.len();
         let [h, w] = self.input_hw;
-        let (oh, ow) = (h / 2, w / 2);
+        let [oh, ow] = self.output_hw;
+        let channels = items.first().map_or(3, |i| i.image.len() / (h * w));
+        assert!(items.iter().all(|i| i.image.len() == channels * h * w), "items of one batch differ in size");
         let images: Vec<f32> = items.iter().flat_map(|i| i.image.iter().copied()).collect();
         let depths: Vec<f32> = items.iter().flat_map(|i| i.depth.iter().copied()).collect();
         let masks: Vec<f32> = (0..n).flat_map(|_| self.mask.iter().copied()).collect();
         DepthBatch {
-            images: Tensor::from_data(TensorData::new(images, [n, 3, h, w]), device),
+            images: Tensor::from_data(TensorData::new(images, [n, channels, h, w]), device),
             depths: Tensor::from_data(TensorData::new(depths, [n, 1, oh, ow]), device),
             masks: Tensor::from_data(TensorData::new(masks, [n, 1, oh, ow]), device),
         }

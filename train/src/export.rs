@@ -6,7 +6,7 @@ use anyhow::{Context, Result};
 use burn::module::Module;
 use formats::dataset::Split;
 use formats::training::{Imported, TestError, Trained, TrainingRecord};
-use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, INPUT_ENCODING, write_bundle};
+use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, write_bundle};
 use model::{DenseDepth, DepthScale};
 use sensor::Sensor;
 
@@ -36,7 +36,8 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path, inputs: &[&Pat
     formats::output::check_dir(out, formats::output::OutputKind::Bundle, &all_inputs)?;
     let mut test = DepthDataset::open(&state.config.data, Some(Split::Test), state.config.input_hw)?;
     test.scale = state.config.scale(test.sensor.max_depth_mm);
-    let batcher = crate::data::DepthBatcher { input_hw: state.config.input_hw, mask: test.mask.clone() };
+    test.set_model(&state.model)?;
+    let batcher = crate::data::DepthBatcher::for_data(&test);
     let device = net.devices().into_iter().next().context("the network has no device")?;
     let (test_error, test_missing) = if test.records.is_empty() {
         (None, Some("the dataset has no test split".to_string()))
@@ -67,7 +68,7 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path, inputs: &[&Pat
         model: state.model.clone(),
         input_height_px: state.config.input_hw[0],
         input_width_px: state.config.input_hw[1],
-        input_encoding: INPUT_ENCODING.into(),
+        input_encoding: state.model.input.encoding().into(),
         depth_scale: test.scale,
         sensor: test.sensor.clone(),
         reference_image: None,
@@ -112,7 +113,7 @@ pub fn import_pth(
         model: imported.config,
         input_height_px: input_hw[0],
         input_width_px: input_hw[1],
-        input_encoding: INPUT_ENCODING.into(),
+        input_encoding: model::InputChannels::Rgb.encoding().into(),
         depth_scale: DepthScale::paper(sensor.max_depth_mm as f32),
         sensor,
         reference_image: None,

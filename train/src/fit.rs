@@ -82,7 +82,9 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
     config.validate()?;
     let Some(device) = options.devices.first() else { bail!("no training device given") };
     formats::output::claim_dir(run_dir, OutputKind::Run, &[&config.data])?;
-    let (train, val) = select(config)?;
+    let (mut train, mut val) = select(config)?;
+    train.set_model(&start.model_config)?;
+    val.set_model(&start.model_config)?;
     let mut run = Run::start(run_dir, config, start, options, train, val)?;
     while run.state.epoch < config.epochs {
         let epoch_start = Instant::now();
@@ -208,8 +210,11 @@ impl<'a> Run<'a> {
         if config.freeze_encoder {
             net.encoder = net.encoder.no_grad();
         }
-        let loss = DepthLossConfig::new().with_dynamic_range(train.scale.range() as f64);
-        let batcher = DepthBatcher { input_hw: config.input_hw, mask: train.mask.clone() };
+        let loss = DepthLossConfig::new()
+            .with_dynamic_range(train.scale.range() as f64)
+            .with_contact_weight(config.contact_weight)
+            .with_contact_above(train.scale.to_net(sensor::CONTACT_THRESHOLD_MM) as f64);
+        let batcher = DepthBatcher::for_data(&train);
         let parallel = DataParallel::new(&options.devices, batcher.clone(), loss)?;
         Ok(Run { dir, config, options, train: Arc::new(train), val, batcher, parallel, net, optim, state, bad_run: 0 })
     }

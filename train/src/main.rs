@@ -90,6 +90,10 @@ struct Common {
     /// epoch's model (0: validate on the test split, keep the last epoch).
     #[arg(long, default_value_t = 0.1)]
     val_fraction: f64,
+    /// Weight of an extra L1 term over contact pixels in the training loss (0: DenseDepth's
+    /// loss).
+    #[arg(long, default_value_t = 0.0)]
+    contact_weight: f64,
     /// Threads that decode batches ahead of the training step (0: none).
     #[arg(long, default_value_t = 2)]
     loader_workers: usize,
@@ -108,6 +112,14 @@ struct FitArgs {
     /// Network input, HxW (multiples of 32); the square crop is resized to it.
     #[arg(long, default_value = "256x256", value_parser = parse_hw)]
     input: [usize; 2],
+    /// What the network reads: `rgb` (the paper's) or `rgb-difference` (RGB and its difference to
+    /// the dataset's `unit/reference.png`, which a bundle then carries).
+    #[arg(long, default_value = "rgb", value_parser = model::InputChannels::by_name)]
+    channels: model::InputChannels,
+    /// Output at the input's resolution (a fifth decoder block whose skip is the input)
+    /// instead of DenseDepth's half.
+    #[arg(long)]
+    full_resolution: bool,
     /// Depth in network units: `paper` (0..max depth -> 10..1000, as the paper trained) or
     /// `unit` (0.01..1, reached in far fewer steps when training from scratch).
     #[arg(long, value_enum, default_value_t = DepthUnits::Paper)]
@@ -188,6 +200,7 @@ fn config(c: &Common, input_hw: [usize; 2], net_range: [f32; 2], freeze_encoder:
         max_bad_steps: c.max_bad_steps,
         freeze_encoder,
         train_fraction: c.train_fraction,
+        contact_weight: c.contact_weight,
     };
     config.validate()?;
     Ok(config)
@@ -205,7 +218,9 @@ fn run_fit(args: FitArgs) -> Result<()> {
     check_bundle(&args.bundle, &[&args.common.data, &args.common.out])?;
     let cfg = config(&args.common, args.input, args.depth_units.net_range(), false)?;
     let model_config =
-        model::DenseDepthConfig::new(model::DenseNetConfig::by_name(&args.preset).map_err(anyhow::Error::msg)?);
+        model::DenseDepthConfig::new(model::DenseNetConfig::by_name(&args.preset).map_err(anyhow::Error::msg)?)
+            .with_input(args.channels)
+            .with_full_resolution(args.full_resolution);
     let options = options(&args.common)?;
     let dev = options.devices[0].clone();
     let weights = match &args.encoder_weights {
@@ -215,7 +230,8 @@ fn run_fit(args: FitArgs) -> Result<()> {
                 bail!("{}: its DenseNet is not the {} preset", path.display(), args.preset);
             }
             let mut net = model_config.init(&dev);
-            net.encoder = imported.model.encoder;
+            // Extra input channels start at zero weight: the network begins as the RGB one.
+            net.encoder = imported.model.encoder.with_input_channels(args.channels.count());
             Some(net)
         }
         None => None,

@@ -91,6 +91,42 @@ fn a_tiny_dataset_trains_and_its_bundle_predicts_the_same() {
 }
 
 #[test]
+fn a_reference_difference_full_resolution_network_trains_and_exports() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    tiny_dataset(&data);
+    let model_config = model::DenseDepthConfig::new(model::DenseNetConfig::tiny())
+        .with_input(model::InputChannels::RgbDifference)
+        .with_full_resolution(true);
+    // Items carry six channels and full-size targets; the reference frame's differences are 0.
+    let mut set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
+    set.set_model(&model_config).unwrap();
+    let item = set.load(0, None).unwrap();
+    assert_eq!((item.image.len(), item.depth.len(), set.mask.len()), (6 * 64 * 64, 64 * 64, 64 * 64));
+    let device = model::backend::default_device();
+    let run = tmp.path().join("run");
+    let config = FitConfig { contact_weight: 2.0, ..config(&data, 2) };
+    let fitted =
+        fit(&run, &config, Start { model_config: model_config.clone(), weights: None }, &device, false).unwrap();
+    let h = &fitted.state.history;
+    assert!(h[1].val_loss < h[0].val_loss, "validation loss must drop: {h:?}");
+    let bundle = tmp.path().join("bundle");
+    train::export::export_net(&fitted.net, &fitted.state, &bundle, &[]).unwrap();
+    let (loaded, file) = model::bundle::load_bundle(&bundle, &device).unwrap();
+    assert_eq!(file.model, model_config);
+    assert_eq!(file.input_encoding, model::InputChannels::RgbDifference.encoding());
+    let x = Tensor::<4>::random([1, 6, 64, 64], Distribution::Uniform(0.0, 1.0), &device);
+    let out = loaded.forward(x);
+    assert_eq!(out.dims(), [1, 1, 64, 64]);
+
+    // Without the unit's reference frame there is no such run, and the message says why.
+    std::fs::remove_file(data.join("unit/reference.png")).unwrap();
+    let e =
+        fit(&tmp.path().join("run2"), &config, Start { model_config, weights: None }, &device, false).err().unwrap();
+    assert!(format!("{e:#}").contains("reference.png"), "{e:#}");
+}
+
+#[test]
 fn a_run_killed_at_any_moment_resumes_to_the_same_weights() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");

@@ -46,7 +46,7 @@ fn setup(n: usize) -> Setup {
     tiny_dataset(&data);
     let set = DepthDataset::open(&data, Some(Split::Train), [64, 64]).unwrap();
     let items = (0..n).map(|i| set.load(i, None).unwrap()).collect();
-    let batcher = DepthBatcher { input_hw: [64, 64], mask: set.mask.clone() };
+    let batcher = DepthBatcher::for_data(&set);
     let loss = DepthLossConfig::new().with_dynamic_range(set.scale.range() as f64);
     Setup { items, batcher, loss, _tmp: tmp }
 }

@@ -62,7 +62,8 @@ pub fn run(args: Args) -> Result<()> {
     };
     let mut b_test = DepthDataset::open(b, Some(Split::Test), input_hw)?;
     b_test.scale = cfg(b, 1.0).scale(b_test.sensor.max_depth_mm);
-    let batcher = DepthBatcher { input_hw, mask: b_test.mask.clone() };
+    b_test.set_model(&model_config)?;
+    let batcher = DepthBatcher::for_data(&b_test);
     let on_b = |net: &DenseDepth| -> Result<f64> {
         Ok(validate(net, &b_test, &batcher, args.batch, &device, OnBadData::Stop, "test")?.l1_mm)
     };
@@ -76,7 +77,8 @@ pub fn run(args: Args) -> Result<()> {
     let trained_a = fit(&run_dir("a"), &cfg(a, 1.0), fresh(), &device, false)?;
     let mut a_test = DepthDataset::open(a, Some(Split::Test), input_hw)?;
     a_test.scale = b_test.scale;
-    let batcher_a = DepthBatcher { input_hw, mask: a_test.mask.clone() };
+    a_test.set_model(&model_config)?;
+    let batcher_a = DepthBatcher::for_data(&a_test);
     let a_own = validate(&trained_a.net, &a_test, &batcher_a, args.batch, &device, OnBadData::Stop, "test")?.l1_mm;
     let before = on_b(&trained_a.net)?;
     let mut rows = vec![("A on A's test split".to_string(), a_own), ("A on B, before fine-tuning".to_string(), before)];

@@ -71,7 +71,7 @@ pub fn run(args: Args) -> Result<()> {
     }
 
     // The train step alone, on batches decoded beforehand.
-    let batcher = train::data::DepthBatcher { input_hw, mask: data.mask.clone() };
+    let batcher = train::data::DepthBatcher::for_data(&data);
     let loss = model::DepthLossConfig::new().with_dynamic_range(data.scale.range() as f64);
     let parallel = train::parallel::DataParallel::new(std::slice::from_ref(&device), batcher, loss)?;
     let model_config = DenseDepthConfig::new(DenseNetConfig::by_name(&args.preset).map_err(anyhow::Error::msg)?);

@@ -102,7 +102,8 @@ pub fn run(args: Args) -> Result<()> {
         } else {
             // The training loop's own data parallelism, on a batch of random samples (every
             // pixel useful, so the masked loss is the loss above).
-            let batcher = DepthBatcher { input_hw: [h, w], mask: vec![1.0; h / 2 * (w / 2)] };
+            let batcher =
+                DepthBatcher { input_hw: [h, w], output_hw: [h / 2, w / 2], mask: vec![1.0; h / 2 * (w / 2)] };
             let parallel = DataParallel::new(&devices, batcher, loss_config.clone())?;
             let mut rng = formats::SplitMix64::for_item(7, batch as u64);
             let items: Vec<DepthItem> = (0..batch)

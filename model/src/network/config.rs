@@ -2,6 +2,8 @@
 
 use burn::config::Config;
 
+use crate::input::InputChannels;
+
 /// A torchvision `DenseNet` (four dense blocks).
 #[derive(Config, Debug, PartialEq)]
 pub struct DenseNetConfig {
@@ -97,6 +99,14 @@ pub struct DenseDepthConfig {
     /// Decoder channels as a fraction of the bottleneck's (DenseDepth uses 0.5).
     #[config(default = 0.5)]
     pub decoder_width: f64,
+    /// What the network reads: RGB (the paper's; configurations written before this field) or
+    /// RGB and its difference to the unit's reference frame.
+    #[config(default = "InputChannels::Rgb")]
+    pub input: InputChannels,
+    /// Output at the input's resolution (a fifth decoder block whose skip is the input)
+    /// instead of DenseDepth's half: edges of contact patches and small bumps survive.
+    #[config(default = false)]
+    pub full_resolution: bool,
 }
 
 impl DenseDepthConfig {
@@ -105,6 +115,11 @@ impl DenseDepthConfig {
         let (_, bottleneck) = self.encoder.skip_channels();
         let n = (bottleneck as f64 * self.decoder_width) as usize;
         [n, n / 2, n / 4, n / 8, n / 16]
+    }
+
+    /// The output's height and width for an input of `[h, w]`.
+    pub fn output_hw(&self, [h, w]: [usize; 2]) -> [usize; 2] {
+        if self.full_resolution { [h, w] } else { [h / 2, w / 2] }
     }
 
     /// Input sides must be multiples of this (five halvings).

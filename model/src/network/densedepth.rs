@@ -8,8 +8,9 @@ use super::decoder::Decoder;
 use super::densenet::DenseNetEncoder;
 use super::upsample::{Upsample, upsample_mode_for};
 
-/// DenseDepth: RGB image in [0, 1] ([N, 3, H, W], H and W multiples of 32) to depth in
-/// network units at half resolution ([N, 1, H/2, W/2]).
+/// DenseDepth: an encoded crop ([N, C, H, W], C = 3 for RGB in [0, 1], 6 with the reference
+/// difference; H and W multiples of 32) to depth in network units at half resolution
+/// ([N, 1, H/2, W/2]), or at the input's with `DenseDepthConfig::full_resolution`.
 #[derive(Module, Debug)]
 pub struct DenseDepth {
     pub encoder: DenseNetEncoder,
@@ -20,8 +21,14 @@ impl DenseDepthConfig {
     pub fn init(&self, device: &Device) -> DenseDepth {
         let (skips, bottleneck) = self.encoder.skip_channels();
         DenseDepth {
-            encoder: self.encoder.init(device),
-            decoder: Decoder::new(skips, bottleneck, self.decoder_channels(), device),
+            encoder: self.encoder.init_for(self.input.count(), device),
+            decoder: Decoder::new(
+                skips,
+                bottleneck,
+                self.decoder_channels(),
+                self.full_resolution.then_some(self.input.count()),
+                device,
+            ),
         }
     }
 }
@@ -36,13 +43,14 @@ impl DenseDepth {
 
     pub fn forward_with(&self, images: Tensor<4>, mode: Upsample) -> Tensor<4> {
         let [_, c, h, w] = images.dims();
-        assert!(c == 3, "DenseDepth takes RGB images ([N, 3, H, W]), got {c} channels");
+        let want = self.encoder.conv0.weight.dims()[1];
+        assert!(c == want, "this DenseDepth takes {want} input channels ([N, {want}, H, W]), got {c}");
         assert!(
             h % DenseDepthConfig::STRIDE == 0 && w % DenseDepthConfig::STRIDE == 0 && h > 0 && w > 0,
             "input sides must be positive multiples of {}, got {h}x{w}",
             DenseDepthConfig::STRIDE
         );
-        self.decoder.forward(self.encoder.forward(images), mode)
+        self.decoder.forward(self.encoder.forward(images.clone()), images, mode)
     }
 
     /// The same network for inference only: BatchNorms that follow a convolution are folded
@@ -67,5 +75,35 @@ mod tests {
         let device = crate::backend::default_device();
         let model = DenseDepthConfig::new(crate::network::DenseNetConfig::tiny()).init(&device);
         model.forward(Tensor::zeros([1, 3, 48, 64], &device));
+    }
+
+    #[test]
+    fn channels_and_output_size_follow_the_config() {
+        let device = crate::backend::default_device();
+        let base = DenseDepthConfig::new(crate::network::DenseNetConfig::tiny());
+        for (input, full, want) in [
+            (crate::InputChannels::Rgb, false, [2, 1, 32, 48]),
+            (crate::InputChannels::RgbDifference, false, [2, 1, 32, 48]),
+            (crate::InputChannels::RgbDifference, true, [2, 1, 64, 96]),
+        ] {
+            let config = base.clone().with_input(input).with_full_resolution(full);
+            let model = config.init(&device);
+            let out = model.forward(Tensor::zeros([2, input.count(), 64, 96], &device));
+            assert_eq!(out.dims(), want, "{input:?} full {full}");
+            assert_eq!(config.output_hw([64, 96]), [want[2], want[3]]);
+        }
+    }
+
+    #[test]
+    fn a_widened_stem_computes_what_the_rgb_one_did() {
+        let device = crate::backend::default_device();
+        let model = DenseDepthConfig::new(crate::network::DenseNetConfig::tiny()).init(&device);
+        let x = Tensor::<4>::random([1, 3, 64, 64], burn::tensor::Distribution::Uniform(0.0, 1.0), &device);
+        let extra = Tensor::<4>::random([1, 3, 64, 64], burn::tensor::Distribution::Uniform(-1.0, 1.0), &device);
+        let a = model.forward(x.clone()).into_data().try_to_vec::<f32>().unwrap();
+        let wide = DenseDepth { encoder: model.encoder.with_input_channels(6), decoder: model.decoder };
+        let b = wide.forward(Tensor::cat(vec![x, extra], 1)).into_data().try_to_vec::<f32>().unwrap();
+        let worst = a.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+        assert!(worst < 1e-4, "{worst}");
     }
 }

@@ -146,13 +146,19 @@ pub struct DenseNetEncoder {
 }
 
 impl DenseNetConfig {
+    /// The encoder of RGB images (torchvision's).
     pub fn init(&self, device: &Device) -> DenseNetEncoder {
+        self.init_for(3, device)
+    }
+
+    /// The encoder of images with `in_channels` channels.
+    pub fn init_for(&self, in_channels: usize, device: &Device) -> DenseNetEncoder {
         let (g, bn) = (self.growth_rate, self.bn_size);
         let c = self.block_channels();
         let [b1, b2, b3, b4] = self.block_config;
         let c0 = self.num_init_features;
         DenseNetEncoder {
-            conv0: conv([3, c0], 7, 2, 3, device),
+            conv0: conv([in_channels, c0], 7, 2, 3, device),
             norm0: Some(BatchNormConfig::new(c0).init(device)),
             pool0: MaxPool2dConfig::new([3, 3])
                 .with_strides([2, 2])
@@ -171,6 +177,20 @@ impl DenseNetConfig {
 }
 
 impl DenseNetEncoder {
+    /// The same encoder reading `channels` input channels: the stem's weights for channels
+    /// beyond those it has start at zero, so the network computes what it did. Fewer channels
+    /// than it has is a programming error.
+    pub fn with_input_channels(mut self, channels: usize) -> Self {
+        let [out, have, kh, kw] = self.conv0.weight.dims();
+        assert!(channels >= have, "cannot narrow the stem from {have} to {channels} channels");
+        if channels > have {
+            let w = self.conv0.weight.val();
+            let zeros = Tensor::<4>::zeros([out, channels - have, kh, kw], &w.device());
+            self.conv0.weight = burn::module::Param::from_tensor(Tensor::cat(vec![w, zeros], 1));
+        }
+        self
+    }
+
     pub fn forward(&self, x: Tensor<4>) -> Skips {
         let relu0 = match &self.norm0 {
             Some(norm) => norm_relu(norm, conv2d(&self.conv0, x)),

@@ -1,0 +1,194 @@
+//! What the network sees: a camera crop, and optionally its difference to the unit's reference
+//! frame. Training and inference both encode through [`InputEncoder`], so the two cannot drift
+//! apart.
+//!
+//! The difference channels carry what contact changed. They remove the unit's own shading (LED
+//! placement, gel colour, vignetting) from what the network must learn, which a short CPU
+//! budget and a fine-tune from a little data both need.
+
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+/// The channels of the network's input.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InputChannels {
+    /// R, G, B in [0, 1]: the paper's input.
+    #[default]
+    Rgb,
+    /// R, G, B in [0, 1], then `DIFFERENCE_GAIN * (frame - reference)` for each of R, G, B.
+    RgbDifference,
+}
+
+/// Scale of the difference channels: contact changes shading by a few tens of grey levels,
+/// noise by one or two; four times the difference puts contact near the RGB channels' range.
+pub const DIFFERENCE_GAIN: f32 = 4.0;
+
+impl InputChannels {
+    /// Channels the network's first convolution takes.
+    pub fn count(self) -> usize {
+        match self {
+            InputChannels::Rgb => 3,
+            InputChannels::RgbDifference => 6,
+        }
+    }
+
+    /// Whether encoding needs the unit's reference frame.
+    pub fn needs_reference(self) -> bool {
+        self == InputChannels::RgbDifference
+    }
+
+    /// The bundle's `input_encoding` text for these channels.
+    pub fn encoding(self) -> &'static str {
+        match self {
+            InputChannels::Rgb => "rgb/255",
+            InputChannels::RgbDifference => "rgb/255,4*(rgb-reference)/255",
+        }
+    }
+
+    /// The channels whose [`encoding`](Self::encoding) is `text`.
+    pub fn from_encoding(text: &str) -> Option<Self> {
+        [InputChannels::Rgb, InputChannels::RgbDifference].into_iter().find(|c| c.encoding() == text)
+    }
+
+    /// The name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            InputChannels::Rgb => "rgb",
+            InputChannels::RgbDifference => "rgb-difference",
+        }
+    }
+
+    /// The channels named `name` on the command line.
+    pub fn by_name(name: &str) -> Result<Self, String> {
+        [InputChannels::Rgb, InputChannels::RgbDifference]
+            .into_iter()
+            .find(|c| c.name() == name)
+            .ok_or_else(|| format!("unknown input {name:?}: rgb, rgb-difference"))
+    }
+}
+
+/// A crop's R, G, B planes resized to `[h, w]` (triangle filter), channel-major, values / 255.
+pub fn rgb_planes(img: &RgbImage, [h, w]: [usize; 2]) -> Vec<f32> {
+    let small = image::imageops::resize(img, w as u32, h as u32, image::imageops::FilterType::Triangle);
+    let mut input = vec![0f32; 3 * h * w];
+    for (k, px) in small.pixels().enumerate() {
+        for c in 0..3 {
+            input[c * h * w + k] = px.0[c] as f32 / 255.0;
+        }
+    }
+    input
+}
+
+/// The unit's reference frame is needed and missing, or does not fit the crop.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct InputError(pub String);
+
+/// Turns crops into the network's input for one unit at one input size.
+#[derive(Clone, Debug)]
+pub struct InputEncoder {
+    channels: InputChannels,
+    hw: [usize; 2],
+    /// The reference frame's R, G, B planes, when the channels use it.
+    reference: Option<Vec<f32>>,
+}
+
+impl InputEncoder {
+    /// An encoder for `channels` at `hw`; `reference` (the unit's no-contact crop) must be given
+    /// when the channels use it, and is ignored otherwise.
+    pub fn new(channels: InputChannels, hw: [usize; 2], reference: Option<&RgbImage>) -> Result<Self, InputError> {
+        let reference = match (channels.needs_reference(), reference) {
+            (false, _) => None,
+            (true, Some(r)) => Some(rgb_planes(r, hw)),
+            (true, None) => {
+                return Err(InputError(format!(
+                    "the network's input ({}) needs the unit's reference frame (a crop with nothing touching)",
+                    channels.name()
+                )));
+            }
+        };
+        Ok(InputEncoder { channels, hw, reference })
+    }
+
+    pub fn channels(&self) -> InputChannels {
+        self.channels
+    }
+
+    pub fn hw(&self) -> [usize; 2] {
+        self.hw
+    }
+
+    /// Values per encoded crop.
+    pub fn len(&self) -> usize {
+        self.channels.count() * self.hw[0] * self.hw[1]
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The network's input for `img`, channel-major.
+    pub fn encode(&self, img: &RgbImage) -> Vec<f32> {
+        self.encode_with(img, |_| {})
+    }
+
+    /// Like [`encode`](Self::encode), with `edit` applied to the R, G, B planes first (training's
+    /// photometric jitter): the difference channels then see the edited frame against the
+    /// untouched reference, as a drifting lamp would show.
+    pub fn encode_with(&self, img: &RgbImage, edit: impl FnOnce(&mut [f32])) -> Vec<f32> {
+        let mut planes = rgb_planes(img, self.hw);
+        edit(&mut planes);
+        if let Some(reference) = &self.reference {
+            let difference: Vec<f32> = planes.iter().zip(reference).map(|(a, b)| DIFFERENCE_GAIN * (a - b)).collect();
+            planes.extend(difference);
+        }
+        planes
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn uniform(rgb: [u8; 3]) -> RgbImage {
+        RgbImage::from_pixel(40, 40, image::Rgb(rgb))
+    }
+
+    #[test]
+    fn planes_are_red_green_blue_in_that_order() {
+        let x = rgb_planes(&uniform([255, 51, 0]), [8, 8]);
+        assert_eq!((x[0], x[64], x[128]), (1.0, 0.2, 0.0));
+        assert_eq!(x.len(), 3 * 64);
+    }
+
+    #[test]
+    fn difference_channels_follow_the_rgb_ones_and_vanish_on_the_reference() {
+        let reference = uniform([100, 100, 100]);
+        let enc = InputEncoder::new(InputChannels::RgbDifference, [8, 16], Some(&reference)).unwrap();
+        assert_eq!(enc.len(), 6 * 8 * 16);
+        let same = enc.encode(&reference);
+        assert!(same[3 * 128..].iter().all(|&v| v == 0.0));
+        let brighter = enc.encode(&uniform([110, 100, 90]));
+        let per = 128;
+        let want = [10.0, 0.0, -10.0].map(|g| DIFFERENCE_GAIN * g / 255.0);
+        for (c, w) in want.into_iter().enumerate() {
+            assert!((brighter[(3 + c) * per] - w).abs() < 1e-6, "channel {c}");
+        }
+        // The edit (jitter) reaches the difference too.
+        let edited = enc.encode_with(&reference, |p| p.iter_mut().for_each(|v| *v += 0.01));
+        assert!((edited[3 * per] - DIFFERENCE_GAIN * 0.01).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_missing_reference_is_an_error_only_when_needed() {
+        assert!(InputEncoder::new(InputChannels::Rgb, [8, 8], None).is_ok());
+        let e = InputEncoder::new(InputChannels::RgbDifference, [8, 8], None).unwrap_err().to_string();
+        assert!(e.contains("reference frame"), "{e}");
+        for c in [InputChannels::Rgb, InputChannels::RgbDifference] {
+            assert_eq!(InputChannels::from_encoding(c.encoding()), Some(c));
+            assert_eq!(InputChannels::by_name(c.name()), Ok(c));
+        }
+        assert!(InputChannels::by_name("bgr").is_err());
+    }
+}
