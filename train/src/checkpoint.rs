@@ -61,6 +61,30 @@ impl RunState {
         self.history.iter().filter(|m| m.val_l1_mm.is_finite()).min_by(|a, b| a.val_l1_mm.total_cmp(&b.val_l1_mm))
     }
 
+    /// Why the run should end before its last epoch, if it should: the validation error has not
+    /// improved for `patience` epochs (held-out validation only: stopping on the test split would
+    /// leak it), or the epochs so far took `max_minutes`. Decided from the history alone, so a
+    /// resumed run stops where an uninterrupted one did.
+    pub fn stop_reason(&self) -> Option<String> {
+        let last = self.history.last()?;
+        if let (Some(patience), Some(best)) = (self.config.patience, self.best())
+            && self.config.val_fraction > 0.0
+            && last.epoch >= best.epoch + patience
+        {
+            return Some(format!(
+                "stopped early: validation L1 has not improved for {patience} epochs (best {:.4} mm at epoch {})",
+                best.val_l1_mm, best.epoch
+            ));
+        }
+        let minutes = self.history.iter().map(|m| m.seconds).sum::<f64>() / 60.0;
+        match self.config.max_minutes {
+            Some(cap) if minutes >= cap => {
+                Some(format!("stopped early: {minutes:.1} minutes of training reached the cap of {cap} minutes"))
+            }
+            _ => None,
+        }
+    }
+
     /// The epoch whose model the run hands on: the best one when it validates on held-out
     /// training samples, else the last (picking on the test split would leak it).
     pub fn selected(&self) -> Option<&EpochMetrics> {
@@ -163,4 +187,43 @@ pub fn restore(ckpt: &Path, state: &RunState, device: &Device) -> Result<(DenseD
         .from_bytes(read(ckpt, "optim.bpk")?)
         .with_context(|| format!("{}: not an optimiser record", ckpt.join("optim.bpk").display()))?;
     Ok((net, optim))
+}
+
+#[cfg(test)]
+mod stop_tests {
+    use super::*;
+
+    fn state(val_l1: &[f64], seconds: f64, patience: Option<usize>, max_minutes: Option<f64>) -> RunState {
+        let config = FitConfig { patience, max_minutes, ..FitConfig::new("d".into(), [64, 64]) };
+        let mut s = RunState::new(config, DenseDepthConfig::new(model::DenseNetConfig::tiny()));
+        s.history = val_l1
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| EpochMetrics {
+                epoch: i + 1,
+                train_loss: 0.1,
+                val_l1_mm: v,
+                val_loss: 0.1,
+                skipped_steps: 0,
+                bad_samples: 0,
+                bad_val_samples: 0,
+                seconds,
+            })
+            .collect();
+        s
+    }
+
+    #[test]
+    fn runs_stop_after_patience_epochs_without_improvement_or_at_the_time_cap() {
+        // Best at epoch 2; epochs 3 and 4 no better: patience 2 stops, patience 3 goes on.
+        let h = [0.5, 0.3, 0.31, 0.3];
+        assert!(state(&h, 10.0, Some(2), None).stop_reason().unwrap().contains("epoch 2"));
+        assert!(state(&h, 10.0, Some(3), None).stop_reason().is_none());
+        // A NaN validation error is no improvement.
+        assert!(state(&[0.5, f64::NAN, f64::NAN], 10.0, Some(2), None).stop_reason().is_some());
+        // Four epochs of 30 s: a 2-minute cap is reached, a 2.5-minute one is not.
+        assert!(state(&h, 30.0, None, Some(2.0)).stop_reason().unwrap().contains("cap"));
+        assert!(state(&h, 30.0, None, Some(2.5)).stop_reason().is_none());
+        assert!(state(&[], 30.0, Some(1), Some(0.1)).stop_reason().is_none(), "nothing to decide on yet");
+    }
 }

@@ -72,6 +72,14 @@ pub struct FitConfig {
     /// `model::DepthLossConfig::contact_weight`). Default 0: DenseDepth's loss.
     #[serde(default)]
     pub contact_weight: f64,
+    /// Stop when the held-out validation L1 has not improved for this many epochs. Default
+    /// none: every epoch runs.
+    #[serde(default)]
+    pub patience: Option<usize>,
+    /// Stop after the first epoch that ends with this many minutes of training behind the run.
+    /// Default none.
+    #[serde(default)]
+    pub max_minutes: Option<f64>,
 }
 
 fn one() -> f64 {
@@ -111,6 +119,8 @@ impl FitConfig {
             warmup_steps: 0,
             val_fraction: 0.1,
             contact_weight: 0.0,
+            patience: None,
+            max_minutes: None,
         }
     }
 
@@ -142,6 +152,19 @@ impl FitConfig {
             "--contact-weight",
             "a finite number at least 0",
             self.contact_weight.to_string(),
+        )?;
+        check(self.patience != Some(0), "--patience", "at least 1", "0".into())?;
+        check(
+            self.patience.is_none() || self.val_fraction > 0.0,
+            "--patience",
+            "used with a validation hold-out (--val-fraction above 0)",
+            format!("{:?} with --val-fraction 0", self.patience),
+        )?;
+        check(
+            self.max_minutes.is_none_or(|m| m.is_finite() && m > 0.0),
+            "--max-minutes",
+            "a positive finite number",
+            format!("{:?}", self.max_minutes),
         )?;
         let [lo, hi] = self.net_range;
         check(
@@ -183,7 +206,10 @@ mod tests {
         let c = FitConfig::new("d".into(), [64, 64]);
         c.validate().unwrap();
         assert_eq!((c.val_fraction, c.batch, c.epochs), (0.1, 4, 10));
-        let cases: [(FitConfig, &str); 8] = [
+        let cases: [(FitConfig, &str); 11] = [
+            (FitConfig { patience: Some(0), ..c.clone() }, "--patience"),
+            (FitConfig { patience: Some(2), val_fraction: 0.0, ..c.clone() }, "--patience"),
+            (FitConfig { max_minutes: Some(f64::NAN), ..c.clone() }, "--max-minutes"),
             (FitConfig { contact_weight: -1.0, ..c.clone() }, "--contact-weight"),
             (FitConfig { batch: 0, ..c.clone() }, "--batch"),
             (FitConfig { epochs: 0, ..c.clone() }, "--epochs"),

@@ -87,6 +87,10 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
     val.set_model(&start.model_config)?;
     let mut run = Run::start(run_dir, config, start, options, train, val)?;
     while run.state.epoch < config.epochs {
+        if let Some(why) = run.state.stop_reason() {
+            eprintln!("{why}");
+            break;
+        }
         let epoch_start = Instant::now();
         run.steps()?;
         run.end_epoch(epoch_start)?;

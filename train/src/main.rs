@@ -94,6 +94,12 @@ struct Common {
     /// loss).
     #[arg(long, default_value_t = 0.0)]
     contact_weight: f64,
+    /// Stop when the validation L1 (held-out samples) has not improved for this many epochs.
+    #[arg(long)]
+    patience: Option<usize>,
+    /// Stop after the first epoch that ends with this many minutes of training behind the run.
+    #[arg(long)]
+    max_minutes: Option<f64>,
     /// Threads that decode batches ahead of the training step (0: none).
     #[arg(long, default_value_t = 2)]
     loader_workers: usize,
@@ -201,6 +207,8 @@ fn config(c: &Common, input_hw: [usize; 2], net_range: [f32; 2], freeze_encoder:
         freeze_encoder,
         train_fraction: c.train_fraction,
         contact_weight: c.contact_weight,
+        patience: c.patience,
+        max_minutes: c.max_minutes,
     };
     config.validate()?;
     Ok(config)

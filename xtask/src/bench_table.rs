@@ -1,5 +1,6 @@
 //! `cargo xtask bench table`: run time against error. Every preset and input size is trained
-//! with the same budget on one dataset, exported, then timed and evaluated on each backend; the
+//! on one dataset until its validation error stops improving (or a cap on epochs and minutes),
+//! exported, then timed and evaluated on each backend; the
 //! table, its Pareto front and a scatter go into BENCHMARKS.md and an SVG.
 //!
 //! Resumable: each configuration's bundle and each row are kept in the work folder, so a run
@@ -40,9 +41,17 @@ pub struct Args {
     /// Scenes in the shared dataset (embedded kit, simulated unit 7, one in ten lifted clear).
     #[arg(long, default_value_t = 300)]
     samples: u32,
-    /// The training budget, the same for every configuration: epochs over the training split.
-    #[arg(long, default_value_t = 2)]
+    /// Most epochs a configuration trains for; it stops earlier when its validation error stops
+    /// improving (`--patience`) or at `--max-minutes`.
+    #[arg(long, default_value_t = 60)]
     epochs: usize,
+    /// Epochs without a better validation L1 (held-out training scenes) after which a
+    /// configuration's training stops.
+    #[arg(long, default_value_t = 4)]
+    patience: usize,
+    /// Cap on each configuration's training time (minutes, checked at each epoch's end).
+    #[arg(long, default_value_t = 90.0)]
+    max_minutes: f64,
     #[arg(long, default_value_t = 4)]
     batch: usize,
     /// Timed frames per measurement (median).
@@ -139,7 +148,11 @@ pub fn run(args: Args) -> Result<()> {
         Ok(text) => serde_json::from_str(&text).with_context(|| format!("{}: not rows JSON", rows_path.display()))?,
         Err(_) => BTreeMap::new(),
     };
-    let budget = format!("e{}-b{}-n{}", args.epochs, args.batch, args.samples);
+    // The recipe is part of the name: rows of another recipe are not reused.
+    let budget = format!(
+        "e{}-p{}-m{}-b{}-n{}-diff-full-cw5",
+        args.epochs, args.patience, args.max_minutes, args.batch, args.samples
+    );
     for preset_name in &args.presets {
         for &side in &args.sizes {
             let run_dir = args.work.join("runs").join(format!("{preset_name}-{side}-{budget}"));
@@ -228,10 +241,16 @@ fn train_once(
         schedule: Schedule::Cosine,
         warmup_steps: 20,
         val_fraction: 0.1,
+        patience: Some(args.patience),
+        max_minutes: Some(args.max_minutes),
+        contact_weight: 5.0,
         ..FitConfig::new(data.to_path_buf(), [side, side])
     };
     let start = Start {
-        model_config: DenseDepthConfig::new(DenseNetConfig::by_name(preset_name).map_err(anyhow::Error::msg)?),
+        // The quickstart's recipe: the reference difference in, output at the input's resolution.
+        model_config: DenseDepthConfig::new(DenseNetConfig::by_name(preset_name).map_err(anyhow::Error::msg)?)
+            .with_input(model::InputChannels::RgbDifference)
+            .with_full_resolution(true),
         weights: None,
     };
     let device = model::backend::default_device();
@@ -281,17 +300,21 @@ fn machine_name() -> String {
 fn section(args: &Args, rows: &[Row], front: &[usize], scene_lines: &[String], manifest: &Manifest) -> String {
     let test_images = manifest.samples.iter().filter(|s| s.split == Split::Test).count();
     let mut s = format!(
-        "{SECTION_START}\n## Run time against error (issue 7)\n\nCommand:\n\n```sh\ncargo xtask bench table --presets {} --sizes {} --samples {} --epochs {} --batch {} --reps {}\n```\n\n",
+        "{SECTION_START}\n## Run time against error (issue 7)\n\nCommand:\n\n```sh\ncargo xtask bench table --presets {} --sizes {} --samples {} --epochs {} --patience {} --max-minutes {} --batch {} --reps {}\n```\n\n",
         args.presets.join(","),
         args.sizes.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(","),
         args.samples,
         args.epochs,
+        args.patience,
+        args.max_minutes,
         args.batch,
         args.reps
     );
     s += &format!(
         "One dataset for every row: {} scenes of the embedded kit, simulated unit 7, one in ten lifted clear \
-         of the sensor ({}). The same training budget for every configuration: {} epochs at batch {}, Adam \
+         of the sensor ({}). Every configuration is trained with the quickstart's recipe (RGB and its difference \
+         to the unit's reference in, output at the input's resolution, contact weight 5) until its validation \
+         L1 has not improved for {} epochs, at most {} epochs or {} minutes, at batch {}, Adam \
          peaking at 1e-3 after 20 warm-up steps with a cosine schedule, depth in 0.01..1 units, best epoch on \
          10 % held out, trained with flex on the CPU (training minutes in the table). Each configuration is then \
          timed and evaluated on each backend: network ms is the median over {} frames of input tensor to \
@@ -300,7 +323,9 @@ fn section(args: &Args, rows: &[Row], front: &[usize], scene_lines: &[String], m
          and over true contact pixels, the contact gate in use, the zero predictor's beside them.\n\n",
         args.samples,
         scene_lines.get(1).map(|l| l.trim()).unwrap_or(""),
+        args.patience,
         args.epochs,
+        args.max_minutes,
         args.batch,
         args.reps,
     );
