@@ -55,22 +55,7 @@ impl Predictor {
     pub fn load(dir: &Path, device: &Device) -> Result<Self, InferError> {
         let (net, file) = load_bundle(dir, device)?;
         let reference = match &file.reference_image {
-            Some(name) => {
-                let path = dir.join(name);
-                let img = sensor::frame::read(&path)?;
-                let crop = file.sensor.crop_size_px;
-                if img.dimensions() != (crop, crop) {
-                    return Err(InferError::File {
-                        path,
-                        message: format!(
-                            "reference image is {}x{}, the crop is {crop}x{crop}",
-                            img.width(),
-                            img.height()
-                        ),
-                    });
-                }
-                Some(img)
-            }
+            Some(name) => Some(sensor::frame::read_reference(&dir.join(name), file.sensor.crop_size_px)?),
             None => None,
         };
         let encoder =

@@ -9,6 +9,22 @@ use infer::Predictor;
 use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, write_bundle};
 use model::{DenseDepthConfig, DenseNetConfig, DepthScale};
 
+/// The description of a bundle of `model` at 64x64 for `unit`.
+fn bundle_file(model: DenseDepthConfig, unit: &SensorUnit) -> BundleFile {
+    BundleFile {
+        format_version: BUNDLE_FORMAT_VERSION,
+        input_encoding: model.input.encoding().into(),
+        model,
+        input_height_px: 64,
+        input_width_px: 64,
+        depth_scale: DepthScale::paper(unit.sensor.max_depth_mm as f32),
+        sensor: unit.sensor.clone(),
+        reference_image: None,
+        training: None,
+        weights_sha256: Default::default(),
+    }
+}
+
 /// A bundle with an untrained tiny network for simulated unit 3, with its reference image.
 fn bundle(dir: &Path) -> Renderer {
     let unit = SensorUnit::from_seed(3, 25.0);
@@ -16,18 +32,7 @@ fn bundle(dir: &Path) -> Renderer {
     let device = model::backend::default_device();
     device.seed(1);
     let net = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&device);
-    let file = BundleFile {
-        format_version: BUNDLE_FORMAT_VERSION,
-        model: DenseDepthConfig::new(DenseNetConfig::tiny()),
-        input_height_px: 64,
-        input_width_px: 64,
-        input_encoding: model::InputChannels::Rgb.encoding().into(),
-        depth_scale: DepthScale::paper(unit.sensor.max_depth_mm as f32),
-        sensor: unit.sensor.clone(),
-        reference_image: None,
-        training: None,
-        weights_sha256: Default::default(),
-    };
+    let file = bundle_file(DenseDepthConfig::new(DenseNetConfig::tiny()), &unit);
     let reference = sensor::frame::encode_png_rgb(&renderer.reference_image(1));
     write_bundle(dir, &net, &file, Some(&reference), &[]).unwrap();
     renderer
@@ -323,18 +328,7 @@ fn a_reference_difference_bundle_reads_its_reference_and_predicts_at_full_resolu
         .with_input(model::InputChannels::RgbDifference)
         .with_full_resolution(true);
     let net = config.init(&device);
-    let file = BundleFile {
-        format_version: BUNDLE_FORMAT_VERSION,
-        model: config,
-        input_height_px: 64,
-        input_width_px: 64,
-        input_encoding: model::InputChannels::RgbDifference.encoding().into(),
-        depth_scale: DepthScale::paper(unit.sensor.max_depth_mm as f32),
-        sensor: unit.sensor.clone(),
-        reference_image: None,
-        training: None,
-        weights_sha256: Default::default(),
-    };
+    let file = bundle_file(config, &unit);
     // Such a bundle is not written without the reference frame its input needs.
     let e = write_bundle(&dir, &net, &file, None, &[]).unwrap_err().to_string();
     assert!(e.contains("reference image") && !dir.exists(), "{e}");

@@ -119,15 +119,6 @@ impl InputEncoder {
         self.hw
     }
 
-    /// Values per encoded crop.
-    pub fn len(&self) -> usize {
-        self.channels.count() * self.hw[0] * self.hw[1]
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
     /// The network's input for `img`, channel-major.
     pub fn encode(&self, img: &RgbImage) -> Vec<f32> {
         self.encode_with(img, |_| {})
@@ -166,8 +157,8 @@ mod tests {
     fn difference_channels_follow_the_rgb_ones_and_vanish_on_the_reference() {
         let reference = uniform([100, 100, 100]);
         let enc = InputEncoder::new(InputChannels::RgbDifference, [8, 16], Some(&reference)).unwrap();
-        assert_eq!(enc.len(), 6 * 8 * 16);
         let same = enc.encode(&reference);
+        assert_eq!(same.len(), 6 * 8 * 16);
         assert!(same[3 * 128..].iter().all(|&v| v == 0.0));
         let brighter = enc.encode(&uniform([110, 100, 90]));
         let per = 128;

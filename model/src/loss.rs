@@ -39,8 +39,9 @@ pub struct DepthLoss {
     pub ssim: Tensor<1>,
     pub gradient: Tensor<1>,
     pub l1: Tensor<1>,
-    /// Mean absolute error over contact pixels (zero where a batch has none).
-    pub contact_l1: Tensor<1>,
+    /// Mean absolute error over contact pixels (zero where a batch has none); computed only
+    /// when `contact_weight` is above zero.
+    pub contact_l1: Option<Tensor<1>>,
 }
 
 /// 1 where the whole 11x11 window around a pixel lies in `mask` ([N, 1, H - 10, W - 10]), so that
@@ -83,11 +84,13 @@ impl DepthLossConfig {
         assert!(h >= WINDOW && w >= WINDOW, "SSIM needs at least {WINDOW}x{WINDOW} pixels, got {h}x{w}");
         let count = (n * h * w) as f32;
         let diff = pred.clone() - target.clone();
-        let mut contact = target.clone().greater_elem(self.contact_above as f32).float().cast(DType::F32);
-        if let Some(m) = &mask {
-            contact = contact * m.clone().cast(DType::F32);
-        }
-        let contact_l1 = sum32(diff.clone().abs().cast(DType::F32) * contact.clone()) / sum32(contact).clamp_min(1.0);
+        let contact_l1 = (self.contact_weight > 0.0).then(|| {
+            let mut contact = target.clone().greater_elem(self.contact_above as f32).float().cast(DType::F32);
+            if let Some(m) = &mask {
+                contact = contact * m.clone().cast(DType::F32);
+            }
+            sum32(diff.clone().abs().cast(DType::F32) * contact.clone()) / sum32(contact).clamp_min(1.0)
+        });
         let dy = |x: Tensor<4>| x.clone().slice([0..n, 0..1, 1..h, 0..w]) - x.slice([0..n, 0..1, 0..h - 1, 0..w]);
         let dx = |x: Tensor<4>| x.clone().slice([0..n, 0..1, 0..h, 1..w]) - x.slice([0..n, 0..1, 0..h, 0..w - 1]);
         let (ey, ex) = ((dy(pred.clone()) - dy(target.clone())).abs(), (dx(pred.clone()) - dx(target.clone())).abs());
@@ -119,10 +122,9 @@ impl DepthLossConfig {
         let total = ssim.clone().mul_scalar(self.ssim_weight)
             + gradient.clone().mul_scalar(self.gradient_weight)
             + l1.clone().mul_scalar(self.l1_weight);
-        let total = if self.contact_weight > 0.0 {
-            total + contact_l1.clone().mul_scalar(self.contact_weight * self.l1_weight)
-        } else {
-            total
+        let total = match &contact_l1 {
+            Some(c) => total + c.clone().mul_scalar(self.contact_weight * self.l1_weight),
+            None => total,
         };
         DepthLoss { total, ssim, gradient, l1, contact_l1 }
     }
@@ -178,7 +180,7 @@ mod tests {
         let a = plain.forward(pred.clone(), target.clone());
         let b = weighted.forward(pred.clone(), target.clone());
         // Sixteen contact pixels each off by 1; the two untouched misses do not count.
-        assert!((scalar(b.contact_l1.clone()) - 1.0).abs() < 1e-6);
+        assert!((scalar(b.contact_l1.clone().unwrap()) - 1.0).abs() < 1e-6);
         let (ta, tb) = (scalar(a.total), scalar(b.total));
         assert!((tb - ta - 3.0 * 0.1 * 1.0).abs() < 1e-5, "{ta} {tb}");
         // A mask that leaves out half the patch leaves the mean over the rest unchanged, and
@@ -187,8 +189,8 @@ mod tests {
         (0..12).for_each(|y| (0..6).for_each(|x| m[y * 12 + x] = 0.0));
         let mask = Tensor::<4>::from_data(TensorData::new(m, [1, 1, 12, 12]), &device);
         let c = weighted.forward_masked(pred.clone(), target.clone(), Some(mask));
-        assert!((scalar(c.contact_l1) - 1.0).abs() < 1e-6);
+        assert!((scalar(c.contact_l1.unwrap()) - 1.0).abs() < 1e-6);
         let none = weighted.forward(pred.clone(), Tensor::zeros([1, 1, 12, 12], &device));
-        assert_eq!(scalar(none.contact_l1), 0.0);
+        assert_eq!(scalar(none.contact_l1.unwrap()), 0.0);
     }
 }

@@ -39,6 +39,8 @@ pub enum FrameError {
          {direct:.0} grey levels rms): the frame looks BGR-ordered (OpenCV's order); convert it to RGB"
     )]
     ChannelsSwapped { path: PathBuf, direct: f64, swapped: f64 },
+    #[error("{path}: the reference frame is {width}x{height} px; the sensor's crop is {crop}x{crop}")]
+    ReferenceSize { path: PathBuf, width: u32, height: u32, crop: u32 },
 }
 
 /// Decodes a frame's bytes (PNG or JPEG, by content) to 8-bit RGB; `path` names it in errors.
@@ -69,6 +71,17 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<RgbImage, FrameError> {
 pub fn read(path: &Path) -> Result<RgbImage, FrameError> {
     let bytes = std::fs::read(path).map_err(|source| FrameError::Io { path: path.to_path_buf(), source })?;
     decode(path, &bytes)
+}
+
+/// Reads a unit's reference frame as datasets and bundles store it: exactly the `crop`-sided
+/// crop (a full camera frame or any other size is an error).
+pub fn read_reference(path: &Path, crop: u32) -> Result<RgbImage, FrameError> {
+    let img = read(path)?;
+    if img.dimensions() != (crop, crop) {
+        let (width, height) = img.dimensions();
+        return Err(FrameError::ReferenceSize { path: path.to_path_buf(), width, height, crop });
+    }
+    Ok(img)
 }
 
 /// The sensor's crop of `img`: cut around the optical centre from the camera's full frame, or

@@ -115,7 +115,7 @@ impl DepthDataset {
     /// Encodes crops for a network whose input is `channels`.
     fn set_input(&mut self, channels: InputChannels) -> anyhow::Result<()> {
         let reference = match (&self.reference, channels.needs_reference()) {
-            (Some(path), true) => Some(sensor::frame::read(path)?),
+            (Some(path), true) => Some(sensor::frame::read_reference(path, self.sensor.crop_size_px)?),
             (None, true) => anyhow::bail!(
                 "{}: missing; the network's input ({}) needs the unit's reference frame",
                 self.dir.join("unit/reference.png").display(),
@@ -123,24 +123,8 @@ impl DepthDataset {
             ),
             (_, false) => None,
         };
-        let crop = self.sensor.crop_size_px;
-        if let (Some(r), Some(path)) = (&reference, &self.reference)
-            && r.dimensions() != (crop, crop)
-        {
-            anyhow::bail!(
-                "{}: reference frame is {}x{}, the crop is {crop}x{crop}",
-                path.display(),
-                r.width(),
-                r.height()
-            );
-        }
         self.encoder = InputEncoder::new(channels, self.input_hw, reference.as_ref())?;
         Ok(())
-    }
-
-    /// The network input this dataset encodes.
-    pub fn input(&self) -> InputChannels {
-        self.encoder.channels()
     }
 
     pub fn dir(&self) -> &Path {
