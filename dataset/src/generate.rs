@@ -193,9 +193,11 @@ impl Generator<'_> {
         }
         let image = match self.renderer {
             Some(renderer) => {
-                let rel = format!("images/{name}.png");
-                let img = renderer.render(&depth.depth_mm, Some(noise_seed(&self.params, id)));
-                write_atomic_unsynced(&self.out.join(&rel), &encode_png_rgb(&img))?;
+                // A unit that streams JPEG stores its stream's bytes, as a rig logs them.
+                let capture = renderer.capture(&depth.depth_mm, Some(noise_seed(&self.params, id)));
+                let (ext, bytes) = capture.file();
+                let rel = format!("images/{name}.{ext}");
+                write_atomic_unsynced(&self.out.join(&rel), &bytes)?;
                 Some(rel)
             }
             None => None,

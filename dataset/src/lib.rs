@@ -32,6 +32,6 @@ pub use calibration::sawtooth::{SawTooth, SawToothShot};
 pub use kit::{Kit, Split, Trial};
 pub use mesh::{LoadOptions, Mesh, MeshError, UpAxis, parse_obj, parse_stl};
 pub use raycast::{Cone, RayBundle, RayCaster, Skipping};
-pub use render::{PixelGrid, Renderer};
+pub use render::{Capture, PixelGrid, Renderer};
 pub use scene::{Indenter, Indicator, RigPose, Scene, SceneDescription};
 pub use unit::SensorUnit;

@@ -219,6 +219,7 @@ fn generate(args: GenerateArgs) -> Result<()> {
         unit: args.unit,
         a_axis_deg: args.a_deg,
         c_axis_deg: args.c_deg,
+        image_model: formats::dataset::IMAGE_MODEL,
     };
     // Travel that presses most contact past the sensor's depth range gives depth maps that say
     // nothing there: refused with the figure, or warned about.

@@ -13,8 +13,9 @@ use serde::{Deserialize, Serialize};
 
 use formats::SplitMix64;
 
-/// Format version of `unit.json`.
-pub const UNIT_FORMAT_VERSION: u32 = 1;
+/// Format version of `unit.json` (2: the elastomer's drape and the camera's response, blur and
+/// compression).
+pub const UNIT_FORMAT_VERSION: u32 = 2;
 
 /// One lit LED: a point light with a soft fall-off (the LEDs sit behind a diffuser).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -36,7 +37,19 @@ pub struct Coating {
     pub shininess: f64,
 }
 
-/// Camera response: exposure, vignetting and noise (8-bit grey levels).
+/// The silicone between the indenter and the coating. A membrane bonded to a gel cannot follow a
+/// step: beyond a contact's edge it drapes down from the edge's depth instead of snapping back.
+/// What the camera shades is that draped surface; the ground truth stays the rigid indenter's
+/// ray-cast depth, as in the paper.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Elastomer {
+    /// Length (mm, along the surface) over which the drape beyond a contact edge falls to 1/e of
+    /// the edge's depth; a thicker gel layer drapes farther. 0: the membrane follows the
+    /// indenter exactly.
+    pub drape_mm: f64,
+}
+
+/// Camera response: exposure, vignetting, optics, noise and encoding (8-bit grey levels).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Camera {
     /// Grey levels per unit of shaded radiance.
@@ -53,6 +66,13 @@ pub struct Camera {
     pub read_noise: f64,
     /// Shot noise: variance grows by this many grey levels squared per grey level of signal.
     pub shot_gain: f64,
+    /// Lens blur: standard deviation (crop pixels) of a Gaussian point spread. 0: sharp.
+    pub blur_px: f64,
+    /// Encoding gamma: a linear level `v` is recorded as `255 (v / 255)^(1 / gamma)`, after the
+    /// noise (which arises in the linear sensor). 1: linear.
+    pub gamma: f64,
+    /// JPEG quality of the camera's stream (a USB camera's MJPEG); `None`: uncompressed frames.
+    pub jpeg_quality: Option<u8>,
 }
 
 /// A physical sensor unit: its true geometry and its optics and lighting.
@@ -66,6 +86,7 @@ pub struct SensorUnit {
     /// Red, green and blue LEDs, in that order.
     pub leds: [Led; 3],
     pub coating: Coating,
+    pub elastomer: Elastomer,
     pub camera: Camera,
 }
 
@@ -95,6 +116,7 @@ impl SensorUnit {
             sensor,
             leds: [led(0.0, [1.0, 0.06, 0.03]), led(120.0, [0.05, 0.9, 0.08]), led(240.0, [0.03, 0.08, 1.1])],
             coating: Coating { albedo: 0.8, specular: 0.25, shininess: 20.0 },
+            elastomer: Elastomer { drape_mm: 0.5 },
             camera: Camera {
                 exposure: 520.0,
                 vignetting: 0.3,
@@ -103,6 +125,9 @@ impl SensorUnit {
                 ambient_level: 8.0,
                 read_noise: 1.5,
                 shot_gain: 0.03,
+                blur_px: 0.5,
+                gamma: 1.0,
+                jpeg_quality: None,
             },
         }
     }
@@ -152,6 +177,14 @@ impl SensorUnit {
         cam.ambient_level = vary(4.0, 12.0);
         cam.read_noise = vary(0.8, 2.5);
         cam.shot_gain = vary(0.01, 0.05);
+        // Drawn after everything above, so that the units of earlier versions keep their
+        // geometry, lights and noise.
+        unit.elastomer.drape_mm = vary(0.25, 1.0);
+        let cam = &mut unit.camera;
+        cam.blur_px = vary(0.3, 1.0);
+        cam.gamma = vary(1.0, 2.2);
+        // One unit in three streams JPEG.
+        cam.jpeg_quality = (vary(0.0, 1.0) < 1.0 / 3.0).then(|| vary(80.0, 95.0).round() as u8);
         unit
     }
 
@@ -172,6 +205,16 @@ impl SensorUnit {
         finite_nonneg("camera.shot_gain", c.shot_gain)?;
         finite_nonneg("coating.albedo", self.coating.albedo)?;
         finite_nonneg("coating.specular", self.coating.specular)?;
+        finite_nonneg("elastomer.drape_mm", self.elastomer.drape_mm)?;
+        finite_nonneg("camera.blur_px", c.blur_px)?;
+        if !(c.gamma.is_finite() && (0.2..=5.0).contains(&c.gamma)) {
+            return Err(format!("camera.gamma must be in 0.2..=5, got {}", c.gamma));
+        }
+        if let Some(q) = c.jpeg_quality
+            && !(1..=100).contains(&q)
+        {
+            return Err(format!("camera.jpeg_quality must be in 1..=100, got {q}"));
+        }
         if !(c.lens_max_theta_rad > self.sensor.max_theta_rad && c.lens_max_theta_rad < PI) {
             return Err(format!(
                 "camera.lens_max_theta_rad must exceed the sensor's max_theta_rad and stay below pi, got {}",

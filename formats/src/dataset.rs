@@ -235,6 +235,18 @@ pub struct GeneratorParams {
     /// C-axis tilts to draw from (default: none).
     #[serde(default, skip_serializing_if = "Angles::is_zero")]
     pub c_axis_deg: Angles,
+    /// The renderer's image model the images were made with ([`IMAGE_MODEL`]), so that a
+    /// resume never mixes two: 1 shaded the rigid surface through a sharp, linear camera; 2
+    /// shades the membrane's drape and adds lens blur, a tone curve and the unit's JPEG.
+    #[serde(default = "first_image_model")]
+    pub image_model: u32,
+}
+
+/// The image model this version renders (see [`GeneratorParams::image_model`]).
+pub const IMAGE_MODEL: u32 = 2;
+
+fn first_image_model() -> u32 {
+    1
 }
 
 impl GeneratorParams {
@@ -253,6 +265,7 @@ impl GeneratorParams {
             unit: None,
             a_axis_deg: Angles::default(),
             c_axis_deg: Angles::default(),
+            image_model: IMAGE_MODEL,
         }
     }
 }

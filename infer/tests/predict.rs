@@ -354,3 +354,35 @@ fn a_reference_difference_bundle_reads_its_reference_and_predicts_at_full_resolu
     let e = Predictor::load(&dir, &device).err().unwrap().to_string();
     assert!(e.contains("bundle.json") && e.contains("reference"), "{e}");
 }
+
+/// Bundles whose input is not a multiple of 32 (odd sides, not square) load and predict the
+/// crop's depth; the output follows `output_hw`; a side under 32 is refused by name on loading.
+#[test]
+fn bundles_of_any_input_size_predict_and_too_small_ones_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let unit = SensorUnit::from_seed(3, 25.0);
+    let renderer = Renderer::for_crop(&unit);
+    let device = model::backend::default_device();
+    let (_, frame) = pressed(&renderer);
+    for (k, (full_resolution, [h, w])) in [(false, [75, 90]), (true, [57, 33])].into_iter().enumerate() {
+        let dir = tmp.path().join(format!("b{k}"));
+        let config = DenseDepthConfig::new(DenseNetConfig::tiny()).with_full_resolution(full_resolution);
+        let net = config.init(&device);
+        let file = BundleFile { input_height_px: h, input_width_px: w, ..bundle_file(config.clone(), &unit) };
+        write_bundle(&dir, &net, &file, None, &[]).unwrap();
+        let predictor = Predictor::load(&dir, &device).unwrap();
+        let out = predictor.forward(predictor.input(std::slice::from_ref(&frame)).unwrap());
+        let [oh, ow] = config.output_hw([h, w]);
+        assert_eq!(out.dims(), [1, 1, oh, ow]);
+        let depth = predictor.predict_network(std::slice::from_ref(&frame)).unwrap().remove(0);
+        assert_eq!(depth.size_px, unit.sensor.crop_size_px);
+        assert!(depth.depth_mm.iter().all(|d| d.is_finite()));
+    }
+    let dir = tmp.path().join("small");
+    let config = DenseDepthConfig::new(DenseNetConfig::tiny());
+    let net = config.init(&device);
+    let file = BundleFile { input_height_px: 31, input_width_px: 64, ..bundle_file(config, &unit) };
+    write_bundle(&dir, &net, &file, None, &[]).ok();
+    let e = Predictor::load(&dir, &device).err().expect("a 31 px side is refused").to_string();
+    assert!(e.contains("bundle.json") && e.contains("at least 32"), "{e}");
+}

@@ -127,20 +127,7 @@ impl BundleFile {
         }
         let file: BundleFile = serde_json::from_str(text).map_err(|e| err(path, e))?;
         file.sensor.validate().map_err(|e| err(path, e))?;
-        let stride = DenseDepthConfig::STRIDE;
-        if file.input_height_px == 0
-            || file.input_width_px == 0
-            || !file.input_height_px.is_multiple_of(stride)
-            || !file.input_width_px.is_multiple_of(stride)
-        {
-            return Err(err(
-                path,
-                format!(
-                    "input {}x{} must be positive multiples of {stride}",
-                    file.input_height_px, file.input_width_px
-                ),
-            ));
-        }
+        DenseDepthConfig::check_input_hw([file.input_height_px, file.input_width_px]).map_err(|e| err(path, e))?;
         if file.input_height_px > MAX_INPUT_SIDE_PX || file.input_width_px > MAX_INPUT_SIDE_PX {
             return Err(err(
                 path,

@@ -115,21 +115,26 @@ fn trainable_upsample_equals_interpolate_and_has_gradients() {
     }
 }
 
+/// A training step through either upsample, at a multiple of 32 and at odd sides that are not.
 #[test]
-fn a_training_step_through_the_matmul_upsample_gives_finite_gradients() {
+fn a_training_step_at_any_input_size_gives_finite_gradients() {
     let d = device();
-    let model = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&d);
-    let images = Tensor::<4>::random([1, 3, 64, 64], Distribution::Uniform(0.0, 1.0), &d);
-    let target = Tensor::<4>::random([1, 1, 32, 32], Distribution::Uniform(10.0, 1000.0), &d);
-    let pred = model.forward_with(images, Upsample::Matmul);
-    assert_eq!(pred.dims(), [1, 1, 32, 32]);
-    let loss = DepthLossConfig::new().forward(pred, target).total;
-    let grads = loss.backward();
-    let w = model.decoder.up1.conv_a.weight.val();
-    let g = to_vec(w.grad(&grads).expect("decoder weights receive a gradient"));
-    assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|v| *v != 0.0));
-    let g = to_vec(model.encoder.conv0.weight.val().grad(&grads).expect("encoder weights receive a gradient"));
-    assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|v| *v != 0.0));
+    let config = DenseDepthConfig::new(DenseNetConfig::tiny());
+    let model = config.init(&d);
+    for (hw, mode) in [([64, 64], Upsample::Matmul), ([45, 71], Upsample::Matmul), ([45, 71], Upsample::Native)] {
+        let [oh, ow] = config.output_hw(hw);
+        let images = Tensor::<4>::random([1, 3, hw[0], hw[1]], Distribution::Uniform(0.0, 1.0), &d);
+        let target = Tensor::<4>::random([1, 1, oh, ow], Distribution::Uniform(10.0, 1000.0), &d);
+        let pred = model.forward_with(images, mode);
+        assert_eq!(pred.dims(), [1, 1, oh, ow]);
+        let loss = DepthLossConfig::new().forward(pred, target).total;
+        let grads = loss.backward();
+        let w = model.decoder.up1.conv_a.weight.val();
+        let g = to_vec(w.grad(&grads).expect("decoder weights receive a gradient"));
+        assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|v| *v != 0.0), "{hw:?} {mode:?}");
+        let g = to_vec(model.encoder.conv0.weight.val().grad(&grads).expect("encoder weights receive a gradient"));
+        assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|v| *v != 0.0), "{hw:?} {mode:?}");
+    }
 }
 
 #[test]

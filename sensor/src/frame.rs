@@ -197,11 +197,15 @@ pub fn encode_png_rgb(img: &RgbImage) -> Vec<u8> {
 }
 
 /// Encodes an RGB image as JPEG at `quality` (1..=100), as USB cameras stream it (MJPEG).
+/// Sides beyond JPEG's 65535 are refused by the encoder; no sensor frame comes near.
 pub fn encode_jpeg_rgb(img: &RgbImage, quality: u8) -> Vec<u8> {
-    let mut out = Vec::new();
-    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
-        .encode_image(img)
-        .expect("in-memory JPEG encode");
+    let mut out = Vec::with_capacity(img.len() / 8);
+    let (w, h) = (u16::try_from(img.width()), u16::try_from(img.height()));
+    let (Ok(w), Ok(h)) = (w, h) else { panic!("a {}x{} frame is too large for JPEG", img.width(), img.height()) };
+    let mut encoder = jpeg_encoder::Encoder::new(&mut out, quality.clamp(1, 100));
+    // Full chroma (4:4:4) at every quality: the calibration reads tooth edges per colour channel.
+    encoder.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_4_4);
+    encoder.encode(img.as_raw(), w, h, jpeg_encoder::ColorType::Rgb).expect("in-memory JPEG encode");
     out
 }
 

@@ -31,7 +31,7 @@ pub enum Schedule {
 pub struct FitConfig {
     /// The dataset folder.
     pub data: PathBuf,
-    /// Network input, height and width (multiples of 32). Default: none (the caller's choice).
+    /// Network input, height and width (each at least 32). Default: none (the caller's choice).
     pub input_hw: [usize; 2],
     /// Default 10.
     pub epochs: usize,
@@ -80,6 +80,11 @@ pub struct FitConfig {
     /// Default none.
     #[serde(default)]
     pub max_minutes: Option<f64>,
+    /// Further dataset folders, other units' (a base model for new units), trained on together
+    /// with `data`, each sample read with its own unit's geometry and reference frame; `data`'s
+    /// unit is the one a bundle describes. Default none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub more_data: Vec<PathBuf>,
 }
 
 fn one() -> f64 {
@@ -121,7 +126,13 @@ impl FitConfig {
             contact_weight: 0.0,
             patience: None,
             max_minutes: None,
+            more_data: Vec::new(),
         }
+    }
+
+    /// Every dataset folder of the run: `data`, then `more_data`.
+    pub fn folders(&self) -> Vec<PathBuf> {
+        std::iter::once(self.data.clone()).chain(self.more_data.iter().cloned()).collect()
     }
 
     /// Checks every setting; the error names the first one out of range.
@@ -130,9 +141,9 @@ impl FitConfig {
             |ok: bool, flag, rule, value: String| if ok { Ok(()) } else { Err(SettingError { flag, rule, value }) };
         let [h, w] = self.input_hw;
         check(
-            h > 0 && w > 0 && h.is_multiple_of(32) && w.is_multiple_of(32),
+            model::DenseDepthConfig::check_input_hw(self.input_hw).is_ok(),
             "--input",
-            "HxW with both sides positive multiples of 32",
+            "HxW with both sides at least 32",
             format!("{h}x{w}"),
         )?;
         check(self.epochs > 0, "--epochs", "at least 1", self.epochs.to_string())?;
@@ -215,7 +226,7 @@ mod tests {
             (FitConfig { epochs: 0, ..c.clone() }, "--epochs"),
             (FitConfig { lr: f64::NAN, ..c.clone() }, "--lr"),
             (FitConfig { lr: f64::INFINITY, ..c.clone() }, "--lr"),
-            (FitConfig { input_hw: [64, 50], ..c.clone() }, "--input"),
+            (FitConfig { input_hw: [64, 31], ..c.clone() }, "--input"),
             (FitConfig { val_fraction: 1.0, ..c.clone() }, "--val-fraction"),
             (FitConfig { train_fraction: 0.0, ..c.clone() }, "--train-fraction"),
         ];

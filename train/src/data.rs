@@ -6,6 +6,7 @@
 //! turn with them).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use burn::data::dataloader::batcher::Batcher;
 use burn::data::dataset::Dataset;
@@ -35,6 +36,9 @@ pub struct DepthItem {
     pub image: Vec<f32>,
     /// [1, OH, OW] (the network's output size), network units.
     pub depth: Vec<f32>,
+    /// [OH * OW]: 1 where the output pixel lies wholly on the unit's useful pixels, else 0
+    /// (units differ, so each item carries its own).
+    pub mask: Arc<Vec<f32>>,
 }
 
 /// Photometric augmentation for one item, drawn from its own stream.
@@ -58,89 +62,155 @@ impl Jitter {
     }
 }
 
-/// The samples of one split of a dataset folder that has images.
-pub struct DepthDataset {
+/// One sensor unit's dataset folder: its geometry, reference frame and the encoder and output
+/// mask that follow from them.
+#[derive(Clone)]
+struct UnitFolder {
     dir: PathBuf,
+    sensor: Sensor,
+    reference: Option<PathBuf>,
+    /// Crops to the network's input; RGB until [`DepthDataset::set_model`] says otherwise.
+    encoder: InputEncoder,
+    mask: Arc<Vec<f32>>,
+}
+
+/// The samples of one split of one or more dataset folders that have images: one unit's, or
+/// several units' at once (a base model for new units). Every sample is read with its own
+/// unit's geometry and reference frame.
+#[derive(Clone)]
+pub struct DepthDataset {
+    units: Vec<UnitFolder>,
+    /// Which of `units` each of `records` comes from.
+    unit_of: Vec<usize>,
+    records: Vec<SampleRecord>,
+    /// The first folder's sensor (the one a bundle describes).
     pub sensor: Sensor,
-    pub records: Vec<SampleRecord>,
     pub input_hw: [usize; 2],
     /// The network's output size (half the input's unless the model says otherwise).
     pub output_hw: [usize; 2],
     pub scale: DepthScale,
-    /// Useful pixels at the output resolution ([OH * OW], 1 or 0).
-    pub mask: Vec<f32>,
-    reference: Option<PathBuf>,
-    /// Crops to the network's input; RGB until [`DepthDataset::set_input`] says otherwise.
-    encoder: InputEncoder,
 }
 
 impl DepthDataset {
     pub fn open(dir: &Path, split: Option<Split>, input_hw: [usize; 2]) -> anyhow::Result<Self> {
-        let manifest = Manifest::load(dir)?;
-        let records: Vec<SampleRecord> =
-            manifest.samples.into_iter().filter(|s| split.is_none_or(|want| s.split == want)).collect();
-        if let Some(s) = records.iter().find(|s| s.image.is_none()) {
-            anyhow::bail!(
-                "{}: sample {} has no camera image; generate the dataset with --unit SEED",
-                dir.join("manifest.json").display(),
-                s.id
-            );
+        Self::open_all(std::slice::from_ref(&dir.to_path_buf()), split, input_hw)
+    }
+
+    /// The samples of `split` of every folder in `dirs` (at least one); the first folder's
+    /// sensor is the dataset's. Folders whose sensors differ in radius or depth range are
+    /// refused: one network's depth units cannot serve both.
+    pub fn open_all(dirs: &[PathBuf], split: Option<Split>, input_hw: [usize; 2]) -> anyhow::Result<Self> {
+        anyhow::ensure!(!dirs.is_empty(), "no dataset folder given");
+        let output_hw = [input_hw[0].div_ceil(2), input_hw[1].div_ceil(2)];
+        let (mut units, mut unit_of, mut records) = (Vec::new(), Vec::new(), Vec::new());
+        for dir in dirs {
+            let manifest = Manifest::load(dir)?;
+            let chosen: Vec<SampleRecord> =
+                manifest.samples.into_iter().filter(|s| split.is_none_or(|want| s.split == want)).collect();
+            if let Some(s) = chosen.iter().find(|s| s.image.is_none()) {
+                anyhow::bail!(
+                    "{}: sample {} has no camera image; generate the dataset with --unit SEED",
+                    dir.join("manifest.json").display(),
+                    s.id
+                );
+            }
+            let sensor = manifest.sensor;
+            if let Some(first) = units.first().map(|u: &UnitFolder| &u.sensor)
+                && (first.radius_mm != sensor.radius_mm || first.max_depth_mm != sensor.max_depth_mm)
+            {
+                anyhow::bail!(
+                    "{}: its sensor ({} mm radius, {} mm deep) differs from {}'s ({} mm, {} mm); one network needs one",
+                    dir.join("manifest.json").display(),
+                    sensor.radius_mm,
+                    sensor.max_depth_mm,
+                    dirs[0].display(),
+                    first.radius_mm,
+                    first.max_depth_mm
+                );
+            }
+            unit_of.extend(std::iter::repeat_n(units.len(), chosen.len()));
+            records.extend(chosen);
+            units.push(UnitFolder {
+                dir: dir.clone(),
+                mask: Arc::new(output_mask(&sensor, output_hw)),
+                reference: Some(dir.join("unit/reference.png")).filter(|p| p.is_file()),
+                encoder: InputEncoder::new(InputChannels::Rgb, input_hw, None)?,
+                sensor,
+            });
         }
-        let sensor = manifest.sensor;
-        let output_hw = [input_hw[0] / 2, input_hw[1] / 2];
-        let mask = output_mask(&sensor, output_hw);
-        let reference = Some(dir.join("unit/reference.png")).filter(|p| p.is_file());
+        let sensor = units[0].sensor.clone();
         Ok(DepthDataset {
-            dir: dir.to_path_buf(),
             scale: DepthScale::paper(sensor.max_depth_mm as f32),
             sensor,
+            units,
+            unit_of,
             records,
             input_hw,
             output_hw,
-            mask,
-            reference,
-            encoder: InputEncoder::new(InputChannels::Rgb, input_hw, None)?,
         })
     }
 
     /// Items for `model`: its input channels and output size. The reference difference reads
-    /// the dataset's `unit/reference.png`, which must then be there.
+    /// each folder's `unit/reference.png`, which must then be there.
     pub fn set_model(&mut self, model: &DenseDepthConfig) -> anyhow::Result<()> {
-        self.set_input(model.input)?;
         self.output_hw = model.output_hw(self.input_hw);
-        self.mask = output_mask(&self.sensor, self.output_hw);
+        for unit in &mut self.units {
+            let reference = match (&unit.reference, model.input.needs_reference()) {
+                (Some(path), true) => Some(sensor::frame::read_reference(path, unit.sensor.crop_size_px)?),
+                (None, true) => anyhow::bail!(
+                    "{}: missing; the network's input ({}) needs the unit's reference frame",
+                    unit.dir.join("unit/reference.png").display(),
+                    model.input.name()
+                ),
+                (_, false) => None,
+            };
+            unit.encoder = InputEncoder::new(model.input, self.input_hw, reference.as_ref())?;
+            unit.mask = Arc::new(output_mask(&unit.sensor, self.output_hw));
+        }
         Ok(())
     }
 
-    /// Encodes crops for a network whose input is `channels`.
-    fn set_input(&mut self, channels: InputChannels) -> anyhow::Result<()> {
-        let reference = match (&self.reference, channels.needs_reference()) {
-            (Some(path), true) => Some(sensor::frame::read_reference(path, self.sensor.crop_size_px)?),
-            (None, true) => anyhow::bail!(
-                "{}: missing; the network's input ({}) needs the unit's reference frame",
-                self.dir.join("unit/reference.png").display(),
-                channels.name()
-            ),
-            (_, false) => None,
-        };
-        self.encoder = InputEncoder::new(channels, self.input_hw, reference.as_ref())?;
-        Ok(())
-    }
-
+    /// The first folder.
     pub fn dir(&self) -> &Path {
-        &self.dir
+        &self.units[0].dir
     }
 
-    /// The unit's no-contact image, if the dataset has one.
+    /// The first folder's unit's no-contact image, if it has one.
     pub fn reference_png(&self) -> Option<Vec<u8>> {
-        self.reference.as_ref().and_then(|p| std::fs::read(p).ok())
+        self.units[0].reference.as_ref().and_then(|p| std::fs::read(p).ok())
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.records.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.records.is_empty()
+    }
+
+    /// Sample `i`'s record.
+    pub fn record(&self, i: usize) -> &SampleRecord {
+        &self.records[i]
+    }
+
+    /// Keeps samples `ids` (indices into the current samples, in that order), drops the rest.
+    pub fn keep(&mut self, ids: &[usize]) {
+        self.records = ids.iter().map(|&i| self.records[i].clone()).collect();
+        self.unit_of = ids.iter().map(|&i| self.unit_of[i]).collect();
+    }
+
+    /// The first folder's output mask (every item carries its own unit's).
+    pub fn mask(&self) -> &[f32] {
+        &self.units[0].mask
     }
 
     /// Loads item `i`, with `jitter` applied to the image when given.
     pub fn load(&self, i: usize, jitter: Option<Jitter>) -> Result<DepthItem, DataError> {
         let record = &self.records[i];
-        let crop = self.sensor.crop_size_px;
-        let image_path = self.dir.join(record.image.as_ref().expect("checked at open"));
+        let unit = &self.units[self.unit_of[i]];
+        let crop = unit.sensor.crop_size_px;
+        let image_path = unit.dir.join(record.image.as_ref().expect("checked at open"));
         let img = sensor::frame::read(&image_path)?;
         if img.width() != crop || img.height() != crop {
             return Err(bad(
@@ -148,16 +218,16 @@ impl DepthDataset {
                 format!("image is {}x{}, the sensor's crop is {crop}x{crop}", img.width(), img.height()),
             ));
         }
-        let depth_path = self.dir.join(&record.depth);
+        let depth_path = unit.dir.join(&record.depth);
         let depth = DepthMap::load_png_um(&depth_path).map_err(|e| bad(&depth_path, e))?;
         if depth.size_px != crop {
             return Err(bad(&depth_path, format!("depth map is {0}x{0}, the crop is {crop}x{crop}", depth.size_px)));
         }
-        let limit = self.sensor.max_depth_mm as f32 + 1e-3;
+        let limit = unit.sensor.max_depth_mm as f32 + 1e-3;
         if let Some(d) = depth.depth_mm.iter().find(|&&d| !(0.0..=limit).contains(&d)) {
-            return Err(bad(&depth_path, format!("depth {d} mm is outside 0..{} mm", self.sensor.max_depth_mm)));
+            return Err(bad(&depth_path, format!("depth {d} mm is outside 0..{} mm", unit.sensor.max_depth_mm)));
         }
-        let image = self.encoder.encode_with(&img, |planes| {
+        let image = unit.encoder.encode_with(&img, |planes| {
             if let Some(j) = jitter {
                 let mut rng = SplitMix64::new(j.seed);
                 for v in planes {
@@ -168,7 +238,7 @@ impl DepthDataset {
         });
         let small = resize_plane(&depth.depth_mm, crop as usize, self.output_hw);
         let depth = small.iter().map(|&d| self.scale.to_net(d)).collect();
-        Ok(DepthItem { image, depth })
+        Ok(DepthItem { image, depth, mask: unit.mask.clone() })
     }
 }
 
@@ -209,13 +279,12 @@ pub struct DepthBatch {
 pub struct DepthBatcher {
     pub input_hw: [usize; 2],
     pub output_hw: [usize; 2],
-    pub mask: Vec<f32>,
 }
 
 impl DepthBatcher {
     /// Batches of `data`'s items.
     pub fn for_data(data: &DepthDataset) -> Self {
-        DepthBatcher { input_hw: data.input_hw, output_hw: data.output_hw, mask: data.mask.clone() }
+        DepthBatcher { input_hw: data.input_hw, output_hw: data.output_hw }
     }
 }
 
@@ -228,7 +297,8 @@ impl Batcher<DepthItem, DepthBatch> for DepthBatcher {
         assert!(items.iter().all(|i| i.image.len() == channels * h * w), "items of one batch differ in size");
         let images: Vec<f32> = items.iter().flat_map(|i| i.image.iter().copied()).collect();
         let depths: Vec<f32> = items.iter().flat_map(|i| i.depth.iter().copied()).collect();
-        let masks: Vec<f32> = (0..n).flat_map(|_| self.mask.iter().copied()).collect();
+        assert!(items.iter().all(|i| i.mask.len() == oh * ow), "an item's mask is not the output's size");
+        let masks: Vec<f32> = items.iter().flat_map(|i| i.mask.iter().copied()).collect();
         DepthBatch {
             images: Tensor::from_data(TensorData::new(images, [n, channels, h, w]), device),
             depths: Tensor::from_data(TensorData::new(depths, [n, 1, oh, ow]), device),

@@ -31,7 +31,9 @@ pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device) -> Resu
 /// split is empty or an image of it cannot be read (`--on-bad-data skip`), it records why there
 /// is no test error instead of a figure over part of it.
 pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path, inputs: &[&Path]) -> Result<()> {
+    // The test error is the bundle's unit's (`data`); other units' folders are inputs too.
     let mut all_inputs = vec![state.config.data.as_path()];
+    all_inputs.extend(state.config.more_data.iter().map(|p| p.as_path()));
     all_inputs.extend(inputs);
     formats::output::check_dir(out, formats::output::OutputKind::Bundle, &all_inputs)?;
     let mut test = DepthDataset::open(&state.config.data, Some(Split::Test), state.config.input_hw)?;
@@ -39,7 +41,7 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path, inputs: &[&Pat
     test.set_model(&state.model)?;
     let batcher = crate::data::DepthBatcher::for_data(&test);
     let device = net.devices().into_iter().next().context("the network has no device")?;
-    let (test_error, test_missing) = if test.records.is_empty() {
+    let (test_error, test_missing) = if test.is_empty() {
         (None, Some("the dataset has no test split".to_string()))
     } else {
         let eval =
@@ -50,14 +52,14 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path, inputs: &[&Pat
             eprintln!(
                 "warning: {} of {} test samples could not be read; the bundle records no test error",
                 eval.bad.len(),
-                test.records.len()
+                test.len()
             );
             (
                 None,
                 Some(format!(
                     "{} of {} test samples could not be read: {}",
                     eval.bad.len(),
-                    test.records.len(),
+                    test.len(),
                     eval.bad.join("; ")
                 )),
             )

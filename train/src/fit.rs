@@ -81,7 +81,9 @@ pub fn fit_on(run_dir: &Path, config: &FitConfig, start: Start, devices: &[Devic
 pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunOptions) -> Result<Fitted> {
     config.validate()?;
     let Some(device) = options.devices.first() else { bail!("no training device given") };
-    formats::output::claim_dir(run_dir, OutputKind::Run, &[&config.data])?;
+    let folders = config.folders();
+    let inputs: Vec<&Path> = folders.iter().map(|p| p.as_path()).collect();
+    formats::output::claim_dir(run_dir, OutputKind::Run, &inputs)?;
     let (mut train, mut val) = select(config)?;
     train.set_model(&start.model_config)?;
     val.set_model(&start.model_config)?;
@@ -106,16 +108,17 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
 /// fraction of it that `train_fraction` asks for), less a seeded hold-out of `val_fraction` of
 /// it for validation; without a hold-out, the test split validates.
 pub fn select(config: &FitConfig) -> Result<(DepthDataset, DepthDataset)> {
-    let mut train = DepthDataset::open(&config.data, Some(Split::Train), config.input_hw)?;
+    let folders = config.folders();
+    let mut train = DepthDataset::open_all(&folders, Some(Split::Train), config.input_hw)?;
     if config.train_fraction < 1.0 {
-        let keep = ((train.records.len() as f64 * config.train_fraction).ceil() as usize).max(1);
-        let chosen = permutation(train.records.len(), config.seed ^ 0x5b5e7, 0);
+        let keep = ((train.len() as f64 * config.train_fraction).ceil() as usize).max(1);
+        let chosen = permutation(train.len(), config.seed ^ 0x5b5e7, 0);
         let mut ids: Vec<usize> = chosen.into_iter().take(keep).collect();
         ids.sort_unstable();
-        train.records = ids.into_iter().map(|i| train.records[i].clone()).collect();
+        train.keep(&ids);
     }
-    let mut val = DepthDataset::open(&config.data, Some(Split::Test), config.input_hw)?;
-    if config.val_fraction == 0.0 && val.records.is_empty() {
+    let mut val = DepthDataset::open_all(&folders, Some(Split::Test), config.input_hw)?;
+    if config.val_fraction == 0.0 && val.is_empty() {
         bail!(
             "{}: the dataset has no test split to validate on; hold out training samples with --val-fraction",
             config.data.display()
@@ -123,7 +126,7 @@ pub fn select(config: &FitConfig) -> Result<(DepthDataset, DepthDataset)> {
     }
     if config.val_fraction > 0.0 {
         // Hold out a seeded part of the training samples; the test split stays unseen.
-        let n = train.records.len();
+        let n = train.len();
         if n < 2 {
             bail!("{}: a validation hold-out needs at least two training samples", config.data.display());
         }
@@ -131,10 +134,10 @@ pub fn select(config: &FitConfig) -> Result<(DepthDataset, DepthDataset)> {
         let order = permutation(n, config.seed ^ 0x7a1d, 0);
         let mut is_val = vec![false; n];
         order.iter().take(held).for_each(|&i| is_val[i] = true);
-        let records = std::mem::take(&mut train.records);
-        let (v, t): (Vec<_>, Vec<_>) = records.into_iter().enumerate().partition(|(i, _)| is_val[*i]);
-        val.records = v.into_iter().map(|(_, r)| r).collect();
-        train.records = t.into_iter().map(|(_, r)| r).collect();
+        let (v, t): (Vec<usize>, Vec<usize>) = (0..n).partition(|&i| is_val[i]);
+        val = train.clone();
+        val.keep(&v);
+        train.keep(&t);
     }
     let scale = config.scale(train.sensor.max_depth_mm);
     train.scale = scale;
@@ -224,14 +227,14 @@ impl<'a> Run<'a> {
     }
 
     fn batches(&self) -> usize {
-        self.train.records.len().div_ceil(self.config.batch)
+        self.train.len().div_ceil(self.config.batch)
     }
 
     /// The rest of the current epoch's steps, each on a batch decoded ahead.
     fn steps(&mut self) -> Result<()> {
         let (config, n_batches) = (self.config, self.batches());
         let epoch = self.state.epoch as u64;
-        let order = permutation(self.train.records.len(), config.seed, epoch);
+        let order = permutation(self.train.len(), config.seed, epoch);
         let mut loader = BatchLoader::new(
             self.train.clone(),
             order,
@@ -392,6 +395,9 @@ impl<'a> Run<'a> {
 pub struct Evaluation {
     /// Mean per-image L1 (mm, useful pixels, network resolution).
     pub l1_mm: f64,
+    /// Mean per-image L1 (mm) over the true contact pixels (deeper than
+    /// `sensor::CONTACT_THRESHOLD_MM`) of the images that have any; `None` if none has.
+    pub contact_l1_mm: Option<f64>,
     /// Mean loss over the batches.
     pub loss: f64,
     /// Images the means are over.
@@ -413,10 +419,10 @@ pub fn validate(
     split: &str,
 ) -> Result<Evaluation> {
     let loss_config = DepthLossConfig::new().with_dynamic_range(data.scale.range() as f64);
-    let useful: f32 = batcher.mask.iter().sum::<f32>().max(1.0);
     let (mut l1_sum, mut loss_sum, mut images, mut batches) = (0f64, 0f64, 0usize, 0usize);
+    let (mut contact_sum, mut contact_images) = (0f64, 0usize);
     let mut bad = Vec::new();
-    let ids: Vec<usize> = (0..data.records.len()).collect();
+    let ids: Vec<usize> = (0..data.len()).collect();
     for chunk in ids.chunks(batch.max(1)) {
         let mut items = Vec::with_capacity(chunk.len());
         for &i in chunk {
@@ -434,15 +440,28 @@ pub fn validate(
             continue;
         }
         let n = items.len();
+        // Useful pixels of each image (its unit's mask).
+        let useful: Vec<f32> = items.iter().map(|i| i.mask.iter().sum::<f32>().max(1.0)).collect();
         let b = batcher.batch(items, device);
         let pred = net.forward(b.images);
         loss_sum += loss_config
             .forward_masked(pred.clone(), b.depths.clone(), Some(b.masks.clone()))
             .total
             .into_scalar::<f32>() as f64;
-        let err_mm: Tensor<4> = (data.scale.tensor_to_mm(pred) - data.scale.tensor_to_mm(b.depths)).abs() * b.masks;
-        let per_image: Vec<f32> = err_mm.sum_dim(3).sum_dim(2).flatten::<1>(0, 3).into_data().try_to_vec::<f32>()?;
-        l1_sum += per_image.iter().map(|&s| (s / useful) as f64).sum::<f64>();
+        let true_mm = data.scale.tensor_to_mm(b.depths);
+        let err_mm: Tensor<4> = (data.scale.tensor_to_mm(pred) - true_mm.clone()).abs() * b.masks.clone();
+        let contact = true_mm.greater_elem(sensor::CONTACT_THRESHOLD_MM).float() * b.masks;
+        let per_image = |t: Tensor<4>| -> Result<Vec<f32>> {
+            Ok(t.sum_dim(3).sum_dim(2).flatten::<1>(0, 3).into_data().try_to_vec::<f32>()?)
+        };
+        let (sums, contact_px) = (per_image(err_mm.clone())?, per_image(contact.clone())?);
+        l1_sum += sums.iter().zip(&useful).map(|(&s, &u)| (s / u) as f64).sum::<f64>();
+        for (s, px) in per_image(err_mm * contact)?.into_iter().zip(contact_px) {
+            if px > 0.0 {
+                contact_sum += (s / px) as f64;
+                contact_images += 1;
+            }
+        }
         images += n;
         batches += 1;
     }
@@ -450,11 +469,17 @@ pub fn validate(
         bail!(
             "{}: the {split} split has no usable sample ({} listed, {} unreadable): no error can be measured on it",
             data.dir().display(),
-            data.records.len(),
+            data.len(),
             bad.len()
         );
     }
-    Ok(Evaluation { l1_mm: l1_sum / images as f64, loss: loss_sum / batches as f64, images, bad })
+    Ok(Evaluation {
+        l1_mm: l1_sum / images as f64,
+        contact_l1_mm: (contact_images > 0).then(|| contact_sum / contact_images as f64),
+        loss: loss_sum / batches as f64,
+        images,
+        bad,
+    })
 }
 
 /// The order of an epoch's samples, from the run's seed and the epoch alone (so a resumed run

@@ -12,6 +12,6 @@ mod loader;
 pub mod parallel;
 
 pub use config::{FitConfig, OnBadData, Schedule, SettingError};
-pub use fit::{Fitted, RunOptions, Start, fit, fit_on, fit_with, optimizer, permutation, select, validate};
+pub use fit::{Evaluation, Fitted, RunOptions, Start, fit, fit_on, fit_with, optimizer, permutation, select, validate};
 pub use formats::training::EpochMetrics;
 pub use loader::{BatchLoader, DecodedBatch};

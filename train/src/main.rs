@@ -43,9 +43,14 @@ enum Command {
 
 #[derive(clap::Args)]
 struct Common {
-    /// Dataset folder (from `dataset generate --unit SEED`).
+    /// Dataset folder (from `dataset generate --unit SEED`); its unit is the one the bundle
+    /// describes.
     #[arg(long)]
     data: PathBuf,
+    /// Another unit's dataset folder to train on together with --data (repeat for more): a
+    /// base model for new units. Each sample is read with its own unit's geometry and reference.
+    #[arg(long)]
+    more_data: Vec<PathBuf>,
     /// Run folder: checkpoints, metrics.csv, metrics.json.
     #[arg(long)]
     out: PathBuf,
@@ -115,7 +120,7 @@ struct FitArgs {
     /// tiny, compact, densenet121, densenet161, densenet169, densenet201.
     #[arg(long, default_value = "compact")]
     preset: String,
-    /// Network input, HxW (multiples of 32); the square crop is resized to it.
+    /// Network input, HxW (each side at least 32, any size); the square crop is resized to it.
     #[arg(long, default_value = "256x256", value_parser = parse_hw)]
     input: [usize; 2],
     /// What the network reads: `rgb` (the paper's) or `rgb-difference` (RGB and its difference to
@@ -172,9 +177,7 @@ fn parse_hw(s: &str) -> Result<[usize; 2], String> {
     let (h, w) = s.split_once('x').ok_or_else(|| format!("expected HxW, got {s:?}"))?;
     let parse = |v: &str| v.trim().parse::<usize>().map_err(|e| format!("{v:?}: {e}"));
     let hw = [parse(h)?, parse(w)?];
-    if hw.iter().any(|&v| v == 0 || v % 32 != 0) {
-        return Err(format!("sides must be positive multiples of 32, got {s}"));
-    }
+    model::DenseDepthConfig::check_input_hw(hw)?;
     Ok(hw)
 }
 
@@ -209,6 +212,7 @@ fn config(c: &Common, input_hw: [usize; 2], net_range: [f32; 2], freeze_encoder:
         contact_weight: c.contact_weight,
         patience: c.patience,
         max_minutes: c.max_minutes,
+        more_data: c.more_data.clone(),
     };
     config.validate()?;
     Ok(config)
@@ -223,7 +227,9 @@ fn check_bundle(bundle: &Option<PathBuf>, inputs: &[&std::path::Path]) -> Result
 }
 
 fn run_fit(args: FitArgs) -> Result<()> {
-    check_bundle(&args.bundle, &[&args.common.data, &args.common.out])?;
+    let mut inputs: Vec<&std::path::Path> = vec![&args.common.data, &args.common.out];
+    inputs.extend(args.common.more_data.iter().map(|p| p.as_path()));
+    check_bundle(&args.bundle, &inputs)?;
     let cfg = config(&args.common, args.input, args.depth_units.net_range(), false)?;
     let model_config =
         model::DenseDepthConfig::new(model::DenseNetConfig::by_name(&args.preset).map_err(anyhow::Error::msg)?)

@@ -9,7 +9,7 @@ use burn::tensor::{Distribution, Tensor};
 use train::{FitConfig, OnBadData, RunOptions, Start, fit, fit_with};
 
 mod common;
-use common::tiny_dataset;
+use common::{tiny_dataset, unit_dataset};
 
 const BIN: &str = env!("CARGO_BIN_EXE_train");
 
@@ -63,10 +63,10 @@ fn a_tiny_dataset_trains_and_its_bundle_predicts_the_same() {
     tiny_dataset(&data);
     // Targets keep depths above 1 mm (a float image resize would clamp them there).
     let set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
-    let deepest = (0..set.records.len())
-        .max_by(|&a, &b| set.records[a].stats.max_depth_mm.total_cmp(&set.records[b].stats.max_depth_mm));
+    let deepest =
+        (0..set.len()).max_by(|&a, &b| set.record(a).stats.max_depth_mm.total_cmp(&set.record(b).stats.max_depth_mm));
     let deepest = deepest.unwrap();
-    assert!(set.records[deepest].stats.max_depth_mm > 2.0);
+    assert!(set.record(deepest).stats.max_depth_mm > 2.0);
     let item = set.load(deepest, None).unwrap();
     let max_mm = item.depth.iter().map(|&v| set.scale.to_mm(v)).fold(0.0f32, f32::max);
     assert!(max_mm > 1.5, "targets are cut at {max_mm} mm");
@@ -102,7 +102,7 @@ fn a_reference_difference_full_resolution_network_trains_and_exports() {
     let mut set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
     set.set_model(&model_config).unwrap();
     let item = set.load(0, None).unwrap();
-    assert_eq!((item.image.len(), item.depth.len(), set.mask.len()), (6 * 64 * 64, 64 * 64, 64 * 64));
+    assert_eq!((item.image.len(), item.depth.len(), set.mask().len()), (6 * 64 * 64, 64 * 64, 64 * 64));
     let device = model::backend::default_device();
     let run = tmp.path().join("run");
     let config = FitConfig { contact_weight: 2.0, ..config(&data, 2) };
@@ -299,4 +299,53 @@ fn train_does_not_link_the_generator() {
     for banned in ["obvhs ", "tobj ", "imageproc ", "dataset "] {
         assert!(!tree.lines().any(|l| l.starts_with(banned)), "train must not depend on {banned}");
     }
+}
+
+/// Several units at once: each sample is read with its own unit's reference frame and mask
+/// (units differ in both), exactly as that unit's folder alone reads it; a base model trains on
+/// them and its bundle describes the first; a folder of another sensor radius is refused.
+#[test]
+fn several_units_train_together_each_read_with_its_own_unit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    unit_dataset(&a, 3, 8);
+    unit_dataset(&b, 9, 8);
+    let model_config = model::DenseDepthConfig::new(model::DenseNetConfig::tiny())
+        .with_input(model::InputChannels::RgbDifference)
+        .with_full_resolution(true);
+    let open = |dirs: &[PathBuf]| {
+        let mut set = train::data::DepthDataset::open_all(dirs, None, [64, 64]).unwrap();
+        set.set_model(&model_config).unwrap();
+        set
+    };
+    let both = open(&[a.clone(), b.clone()]);
+    let (only_a, only_b) = (open(std::slice::from_ref(&a)), open(std::slice::from_ref(&b)));
+    assert_eq!(both.len(), only_a.len() + only_b.len());
+    let (from_a, from_b) = (both.load(0, None).unwrap(), both.load(only_a.len(), None).unwrap());
+    let (alone_a, alone_b) = (only_a.load(0, None).unwrap(), only_b.load(0, None).unwrap());
+    assert_eq!((&from_a.image, &from_a.depth, &from_a.mask), (&alone_a.image, &alone_a.depth, &alone_a.mask));
+    assert_eq!((&from_b.image, &from_b.depth, &from_b.mask), (&alone_b.image, &alone_b.depth, &alone_b.mask));
+    assert_ne!(from_a.mask, from_b.mask, "two units' useful disks differ");
+    // A batch of both carries each item's own mask.
+    let batcher = train::data::DepthBatcher::for_data(&both);
+    let device = model::backend::default_device();
+    let batch =
+        burn::data::dataloader::batcher::Batcher::batch(&batcher, vec![from_a.clone(), from_b.clone()], &device);
+    let masks = batch.masks.into_data().try_to_vec::<f32>().unwrap();
+    assert_eq!(masks, [from_a.mask.as_slice(), from_b.mask.as_slice()].concat());
+
+    let config = FitConfig { more_data: vec![b.clone()], val_fraction: 0.25, ..config(&a, 1) };
+    let run = tmp.path().join("run");
+    let fitted =
+        fit(&run, &config, Start { model_config: model_config.clone(), weights: None }, &device, false).unwrap();
+    assert!(fitted.state.history[0].train_loss.is_finite());
+    let bundle = tmp.path().join("bundle");
+    train::export::export_net(&fitted.net, &fitted.state, &bundle, &[]).unwrap();
+    let file = model::bundle::BundleFile::read(&bundle).unwrap();
+    assert_eq!(file.sensor, only_a.sensor, "the bundle describes --data's unit");
+
+    let c = tmp.path().join("c");
+    common::generated(&c, 4, 4, 30.0, 0.25);
+    let e = train::data::DepthDataset::open_all(&[a.clone(), c.clone()], None, [64, 64]).err().unwrap().to_string();
+    assert!(e.contains("manifest.json") && e.contains("radius"), "{e}");
 }

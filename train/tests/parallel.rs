@@ -60,8 +60,12 @@ fn twins(device: &Device) -> (DenseDepth, DenseDepth) {
     (net, copy)
 }
 
+/// Within `rel` of the larger magnitude of the two, that magnitude taken as at least 1e-5: a
+/// parameter whose gradient all but vanishes (4e-7 and 2e-6 on this batch for two of them) is
+/// the difference of much larger terms, and two devices' summation orders differ there by
+/// float rounding alone.
 fn close(a: &[f32], b: &[f32], rel: f32) -> bool {
-    let scale = a.iter().chain(b).fold(0f32, |m, v| m.max(v.abs())).max(1e-12);
+    let scale = a.iter().chain(b).fold(0f32, |m, v| m.max(v.abs())).max(1e-5);
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= rel * scale)
 }
 
@@ -151,7 +155,9 @@ fn a_gpu_share_agrees_with_a_cpu_share_and_a_run_over_both_learns() {
     for (g, c) in gradients(&net, &on_gpu.grads).iter().zip(gradients(&net, &on_cpu.grads)) {
         assert_eq!(g.is_some(), c.is_some());
         if let (Some(g), Some(c)) = (g, c) {
-            assert!(close(g, &c, 1e-3), "GPU and CPU shares agree");
+            let scale = g.iter().chain(&c).fold(0f32, |m, v| m.max(v.abs()));
+            let worst = g.iter().zip(&c).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+            assert!(close(g, &c, 1e-3), "GPU and CPU shares agree: worst difference {worst} at scale {scale}");
         }
     }
 

@@ -142,12 +142,7 @@ fn bad_samples_are_counted_in_every_split_and_stop_stops_on_any() {
 fn a_split_with_nothing_to_measure_is_an_error_not_a_zero() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    let kit = dataset::Kit::procedural(25.0);
-    let params = formats::dataset::GeneratorParams {
-        test_fraction: 0.0,
-        ..formats::dataset::GeneratorParams::new(2, 12, &kit.source)
-    };
-    dataset::generate::generate_with_unit(&data, &kit, 3, 25.0, params).unwrap();
+    common::generated(&data, 3, 12, 25.0, 0.0);
     let e = err(&fit(&data, &tmp.path().join("a"), &["--val-fraction", "0"]));
     assert!(e.contains("no test split to validate on"), "{e}");
     // With a hold-out it trains; the bundle says there is no test split instead of 0 mm.

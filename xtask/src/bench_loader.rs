@@ -44,7 +44,7 @@ pub fn run(args: Args) -> Result<()> {
     let data_dir = args.work.join(format!("data-{}", args.samples));
     generate_with_unit(&data_dir, &kit, 7, 25.0, GeneratorParams::new(0, args.samples, &kit.source))?;
     let data = Arc::new(DepthDataset::open(&data_dir, Some(Split::Train), input_hw)?);
-    let n = data.records.len();
+    let n = data.len();
     println!(
         "{} at {}x{}, batch {}, {} training samples, {} rayon threads, train step on {}",
         args.preset,

@@ -43,9 +43,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     let encoder = DenseNetConfig::preset(&args.preset).with_context(|| format!("unknown preset {:?}", args.preset))?;
-    if !args.height.is_multiple_of(32) || !args.width.is_multiple_of(32) {
-        bail!("--height and --width must be multiples of 32");
-    }
+    DenseDepthConfig::check_input_hw([args.height, args.width]).map_err(anyhow::Error::msg)?;
     let config = DenseDepthConfig::new(encoder.clone());
     let threads = rayon::current_num_threads();
     let (h, w) = (args.height, args.width);
@@ -102,14 +100,16 @@ pub fn run(args: Args) -> Result<()> {
         } else {
             // The training loop's own data parallelism, on a batch of random samples (every
             // pixel useful, so the masked loss is the loss above).
-            let batcher =
-                DepthBatcher { input_hw: [h, w], output_hw: [h / 2, w / 2], mask: vec![1.0; h / 2 * (w / 2)] };
+            let [oh, ow] = config.output_hw([h, w]);
+            let batcher = DepthBatcher { input_hw: [h, w], output_hw: [oh, ow] };
             let parallel = DataParallel::new(&devices, batcher, loss_config.clone())?;
             let mut rng = formats::SplitMix64::for_item(7, batch as u64);
+            let mask = std::sync::Arc::new(vec![1.0; oh * ow]);
             let items: Vec<DepthItem> = (0..batch)
                 .map(|_| DepthItem {
                     image: (0..3 * h * w).map(|_| rng.unit() as f32).collect(),
-                    depth: (0..h / 2 * (w / 2)).map(|_| 10.0 + 990.0 * rng.unit() as f32).collect(),
+                    depth: (0..oh * ow).map(|_| 10.0 + 990.0 * rng.unit() as f32).collect(),
+                    mask: mask.clone(),
                 })
                 .collect();
             time_ms(args.reps, || {

@@ -28,6 +28,10 @@ pub struct Args {
     /// Samples for the generator's throughput.
     #[arg(long, default_value_t = 200)]
     samples: u32,
+    /// Simulated unit whose images the generator renders (unit 1 streams JPEG and drapes
+    /// most: the slowest of the first ten).
+    #[arg(long, default_value_t = 1)]
+    unit: u64,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -121,20 +125,20 @@ pub fn run(args: Args) -> Result<()> {
     // only and with a simulated unit's RGB images rendered and written too.
     println!();
     let kits = [("procedural kit", Kit::procedural(sensor.radius_mm as f32)), ("DenseTact kit", kit)];
-    let unit = SensorUnit::from_seed(1, sensor.radius_mm);
+    let unit = SensorUnit::from_seed(args.unit, sensor.radius_mm);
     let renderer = Renderer::for_crop(&unit);
     for (name, kit) in &kits {
         for with_images in [false, true] {
             let dir = std::env::temp_dir().join(format!("densetact-bench-gen-{}", std::process::id()));
             std::fs::remove_dir_all(&dir).ok();
             let params = GeneratorParams {
-                unit: with_images.then_some(1),
+                unit: with_images.then_some(args.unit),
                 ..GeneratorParams::new(1, args.samples, &kit.source)
             };
             let (sensor, renderer) = if with_images { (&unit.sensor, Some(&renderer)) } else { (&sensor, None) };
             let report = Generator { out: dir.clone(), sensor, kit, params, skipping: Skipping::On, renderer }.run()?;
             std::fs::remove_dir_all(&dir).ok();
-            let what = if with_images { "depth + RGB image PNGs" } else { "depth PNGs" };
+            let what = if with_images { "depth PNG + camera image" } else { "depth PNGs" };
             println!(
                 "generator ({name}, {what} written): {} samples in {:.2} s = {:.1} samples/s",
                 report.generated,

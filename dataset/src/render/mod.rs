@@ -7,6 +7,10 @@
 //! which is how the real sensor encodes the normal in colour. Vignetting, the housing beyond the
 //! elastomer's rim and sensor noise follow; the result is 8-bit RGB.
 //!
+//! The shaded surface is the membrane's, not the indenter's: it drapes beyond contact edges
+//! (`optics::Drape`). The lens blurs, the camera adds noise in its linear sensor, applies its
+//! tone curve and may compress to JPEG. Each of these is the unit's (`SensorUnit`).
+//!
 //! Only what changes is shaded: the no-contact image of the unit is cached, and a frame re-shades
 //! just the pixels whose depth (or a neighbour's, through the normal) differs from zero.
 
@@ -17,10 +21,12 @@ use crate::unit::SensorUnit;
 
 mod grid;
 mod noise;
+mod optics;
 mod shade;
 
 pub use grid::PixelGrid;
 use noise::{GaussianNoise, quantise};
+use optics::{Drape, LensBlur, Tone};
 use shade::Lighting;
 
 /// What a sample point sees.
@@ -37,6 +43,35 @@ enum Seen {
 /// Linear grey levels (before noise and quantisation), RGB per sample point.
 pub type Radiance = Vec<[f32; 3]>;
 
+/// A frame as a unit's camera delivers it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Capture {
+    /// Uncompressed 8-bit RGB.
+    Raw(RgbImage),
+    /// The camera's JPEG stream: the bytes as encoded.
+    Jpeg(Vec<u8>),
+}
+
+impl Capture {
+    /// The pixels (a JPEG decoded).
+    pub fn into_image(self) -> RgbImage {
+        match self {
+            Capture::Raw(img) => img,
+            Capture::Jpeg(bytes) => image::load_from_memory_with_format(&bytes, image::ImageFormat::Jpeg)
+                .expect("the encoder's own JPEG decodes")
+                .to_rgb8(),
+        }
+    }
+
+    /// What a dataset stores: the file extension and its bytes (a raw frame as PNG).
+    pub fn file(&self) -> (&'static str, std::borrow::Cow<'_, [u8]>) {
+        match self {
+            Capture::Raw(img) => ("png", sensor::frame::encode_png_rgb(img).into()),
+            Capture::Jpeg(bytes) => ("jpg", bytes.into()),
+        }
+    }
+}
+
 /// Renders images of one unit on one pixel grid; build once, render many frames.
 pub struct Renderer {
     unit: SensorUnit,
@@ -49,7 +84,14 @@ pub struct Renderer {
     /// sample itself (a one-sided difference). Bits, not indices, to keep the table small.
     neighbours: Vec<u8>,
     lighting: Lighting,
+    /// The no-contact radiance as the lens delivers it (blurred).
     reference: Radiance,
+    /// The same before the lens' blur (empty for a sharp lens): a frame's change is shaded
+    /// against it and then blurred alone.
+    sharp_reference: Radiance,
+    drape: Option<Drape>,
+    blur: Option<LensBlur>,
+    tone: Option<Tone>,
 }
 
 impl Renderer {
@@ -94,13 +136,34 @@ impl Renderer {
                 _ => [0.0; 3],
             })
             .collect();
-        let mut renderer = Renderer { unit: unit.clone(), grid, dirs, seen, vignette, neighbours, lighting, reference };
+        // Millimetres of the surface between two neighbouring samples at the grid's centre.
+        let centre = (h / 2) * w + w / 2;
+        let mm_per_step =
+            (dirs[centre].angle_between(dirs[(centre + 1).min(grid.len() - 1)]) as f64 * s.radius_mm).max(1e-6);
+        let mut renderer = Renderer {
+            unit: unit.clone(),
+            grid,
+            dirs,
+            seen,
+            vignette,
+            neighbours,
+            lighting,
+            reference,
+            sharp_reference: Vec::new(),
+            drape: Drape::new(unit.elastomer.drape_mm, mm_per_step),
+            blur: LensBlur::new(unit.camera.blur_px / grid.step_px),
+            tone: Tone::new(unit.camera.gamma),
+        };
         let elastomer: Vec<u32> =
             (0..grid.len()).filter(|&i| renderer.seen[i] == Seen::Elastomer).map(|i| i as u32).collect();
         let mut shaded = vec![[0.0; 3]; elastomer.len()];
         renderer.shade_elastomer(&vec![0.0; grid.len()], &elastomer, &mut shaded);
         for (&i, v) in elastomer.iter().zip(shaded) {
             renderer.reference[i as usize] = v;
+        }
+        if let Some(blur) = &renderer.blur {
+            let blurred = blur.whole(&renderer.reference, w);
+            renderer.sharp_reference = std::mem::replace(&mut renderer.reference, blurred);
         }
         renderer
     }
@@ -123,16 +186,16 @@ impl Renderer {
         &self.dirs
     }
 
-    /// The no-contact image before noise.
+    /// The no-contact radiance through the lens, before noise.
     pub fn reference(&self) -> &Radiance {
         &self.reference
     }
 
-    /// Radiance of a frame with `depth_mm` per sample point: the reference, with every sample
-    /// whose normal the depth changes shaded again. Returns the radiance and how many samples
-    /// were shaded.
+    /// Radiance through the lens of a frame whose indenter stands `depth_mm` deep at each sample
+    /// point: the reference, with what the draped membrane changes shaded again. Returns the
+    /// radiance and how many samples differ from the reference.
     pub fn radiance(&self, depth_mm: &[f32]) -> (Radiance, usize) {
-        let (indices, shaded) = self.changes(depth_mm);
+        let (indices, shaded) = self.frame_changes(depth_mm);
         let mut out = self.reference.clone();
         for (&i, v) in indices.iter().zip(shaded) {
             out[i as usize] = v;
@@ -149,7 +212,44 @@ impl Renderer {
         [pick(0, i.wrapping_sub(1)), pick(1, i + 1), pick(2, i.wrapping_sub(w)), pick(3, i + w)]
     }
 
-    /// The samples whose radiance differs from the reference (in grid order) and their values.
+    /// The samples (grid order) where the frame's radiance through the lens differs from the
+    /// reference, and their values: the membrane's drape over the rigid depth, shaded, and the
+    /// change blurred.
+    fn frame_changes(&self, depth_mm: &[f32]) -> (Vec<u32>, Radiance) {
+        assert_eq!(depth_mm.len(), self.grid.len(), "depth map does not match the render grid");
+        let width = self.grid.width as usize;
+        let shape = match &self.drape {
+            Some(drape) => drape.apply(depth_mm, width),
+            None => std::borrow::Cow::Borrowed(depth_mm),
+        };
+        let (indices, shaded) = self.changes(&shape);
+
+        let Some(blur) = &self.blur else {
+            return (indices, shaded);
+        };
+        let (Some(&first), Some(&last)) = (indices.first(), indices.last()) else {
+            return (indices, shaded);
+        };
+        // The change against the sharp reference on the rows it touches, blurred alone, plus
+        // the blurred reference.
+        let (y0, y1) = (first as usize / width, last as usize / width + 1);
+        let base = y0 * width;
+        let mut delta = vec![[0f32; 3]; (y1 - y0) * width];
+        for (&i, v) in indices.iter().zip(&shaded) {
+            let r = self.sharp_reference[i as usize];
+            delta[i as usize - base] = [v[0] - r[0], v[1] - r[1], v[2] - r[2]];
+        }
+        let (first_row, mut values) = blur.rows(&delta, y0, width, self.grid.height as usize);
+        let start = first_row * width;
+        let reference = self.reference[start..start + values.len()].as_flattened();
+        for (v, r) in values.as_flattened_mut().iter_mut().zip(reference) {
+            *v += r;
+        }
+        let indices = (start as u32..(start + values.len()) as u32).collect();
+        (indices, values)
+    }
+
+    /// The samples whose shading `depth_mm` changes (in grid order) and their sharp values.
     fn changes(&self, depth_mm: &[f32]) -> (Vec<u32>, Radiance) {
         assert_eq!(depth_mm.len(), self.grid.len(), "depth map does not match the render grid");
         let mut dirty = vec![false; self.grid.len()];
@@ -180,7 +280,10 @@ impl Renderer {
                 Some(noise) => noise.add_to(px),
                 None => px,
             };
-            px.map(quantise)
+            match &self.tone {
+                Some(tone) => px.map(|v| tone.apply(v)),
+                None => px.map(quantise),
+            }
         };
         let mut img = RgbImage::new(w, h);
         let gw = self.grid.width as usize;
@@ -198,7 +301,15 @@ impl Renderer {
             }
             px.0 = finish(sum.map(|v| v * norm));
         }
-        img
+        self.stream(img).into_image()
+    }
+
+    /// What the camera's stream does to a finished frame.
+    fn stream(&self, img: RgbImage) -> Capture {
+        match self.unit.camera.jpeg_quality {
+            Some(quality) => Capture::Jpeg(sensor::frame::encode_jpeg_rgb(&img, quality)),
+            None => Capture::Raw(img),
+        }
     }
 
     /// The unit's no-contact image on this grid, without noise.
@@ -210,8 +321,14 @@ impl Renderer {
     /// The reference and the re-shaded samples are merged block by block on the way to 8 bits,
     /// so no full-size copy of the reference is made.
     pub fn render(&self, depth_mm: &[f32], noise_seed: Option<u64>) -> RgbImage {
+        self.capture(depth_mm, noise_seed).into_image()
+    }
+
+    /// [`Renderer::render`] as the camera delivers it: for a unit that streams JPEG, the JPEG's
+    /// bytes, which a dataset stores as they are (as a rig logs its camera's stream).
+    pub fn capture(&self, depth_mm: &[f32], noise_seed: Option<u64>) -> Capture {
         const BLOCK: usize = 64;
-        let (indices, shaded) = self.changes(depth_mm);
+        let (indices, shaded) = self.frame_changes(depth_mm);
         let mut noise = noise_seed.map(|seed| GaussianNoise::new(seed, &self.unit));
         let mut bytes = vec![0u8; self.grid.len() * 3];
         let mut block = [[0f32; 3]; BLOCK];
@@ -223,13 +340,19 @@ impl Renderer {
                 block[indices[next] as usize - start] = shaded[next];
                 next += 1;
             }
-            let values = block[..len].as_flattened();
-            match &mut noise {
-                Some(noise) => noise.add_quantised(values, out),
-                None => out.iter_mut().zip(values).for_each(|(o, &v)| *o = quantise(v)),
+            let values = block[..len].as_flattened_mut();
+            match (&mut noise, &self.tone) {
+                (Some(noise), None) => noise.add_quantised(values, out),
+                (None, None) => out.iter_mut().zip(values).for_each(|(o, v)| *o = quantise(*v)),
+                (noise, Some(tone)) => {
+                    if let Some(noise) = noise {
+                        noise.add(values);
+                    }
+                    out.iter_mut().zip(values).for_each(|(o, v)| *o = tone.apply(*v));
+                }
             }
         }
-        RgbImage::from_raw(self.grid.width, self.grid.height, bytes).expect("grid size")
+        self.stream(RgbImage::from_raw(self.grid.width, self.grid.height, bytes).expect("grid size"))
     }
 }
 
@@ -241,6 +364,7 @@ mod tests {
 
     use super::noise::NOISE_TABLE_LEN;
     use super::*;
+    use crate::unit::Camera;
 
     fn nominal() -> (SensorUnit, Renderer) {
         let unit = SensorUnit::nominal(Sensor::default());
@@ -300,32 +424,85 @@ mod tests {
         }
     }
 
-    #[test]
-    fn no_contact_is_the_reference_and_contact_changes_only_its_neighbourhood() {
-        let (_, r) = nominal();
-        let n = r.grid().width as usize;
-        let zeros = vec![0.0; r.grid().len()];
-        assert_eq!(r.render(&zeros, None), r.reference_image(1));
-        let (_, shaded) = r.radiance(&zeros);
-        assert_eq!(shaded, 0, "nothing to shade without contact");
+    /// How many pixels of `r`'s noiseless frame of `depth` differ from its reference image, and
+    /// the box (x0, y0, x1, y1, inclusive) they lie in.
+    fn changed_pixels(r: &Renderer, depth: &[f32]) -> (usize, [u32; 4]) {
+        let img = r.render(depth, None);
+        let reference = r.reference_image(1);
+        let mut b = [u32::MAX, u32::MAX, 0, 0];
+        let mut changed = 0;
+        for (x, y, p) in img.enumerate_pixels() {
+            if p != reference.get_pixel(x, y) {
+                b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
+                changed += 1;
+            }
+        }
+        (changed, b)
+    }
 
-        let mut depth = zeros.clone();
+    /// A ramp 30 x 20 pixels wide (x 300..330, y 200..220), 0.5..0.8 mm deep.
+    fn ramp(r: &Renderer) -> Vec<f32> {
+        let n = r.grid().width as usize;
+        let mut depth = vec![0.0; r.grid().len()];
         for y in 200..220 {
             for x in 300..330 {
                 depth[y * n + x] = 0.5 + 0.01 * (x - 300) as f32;
             }
         }
-        let img = r.render(&depth, None);
-        let reference = r.reference_image(1);
-        let mut changed = 0;
-        for (x, y, p) in img.enumerate_pixels() {
-            let near = (199..=220).contains(&y) && (299..=330).contains(&x);
-            if p != reference.get_pixel(x, y) {
-                assert!(near, "pixel ({x}, {y}) changed away from the contact");
-                changed += 1;
-            }
-        }
+        depth
+    }
+
+    fn unit_with(drape_mm: f64, blur_px: f64, gamma: f64, jpeg_quality: Option<u8>) -> SensorUnit {
+        let mut unit = SensorUnit::nominal(Sensor::default());
+        unit.elastomer.drape_mm = drape_mm;
+        unit.camera = Camera { blur_px, gamma, jpeg_quality, ..unit.camera };
+        unit
+    }
+
+    #[test]
+    fn no_contact_is_the_reference_and_a_rigid_contact_changes_only_its_neighbourhood() {
+        // A membrane that follows the indenter, a sharp linear camera: the normals' one-pixel
+        // reach is all.
+        let r = Renderer::for_crop(&unit_with(0.0, 0.0, 1.0, None));
+        let zeros = vec![0.0; r.grid().len()];
+        assert_eq!(r.render(&zeros, None), r.reference_image(1));
+        let (_, shaded) = r.radiance(&zeros);
+        assert_eq!(shaded, 0, "nothing to shade without contact");
+        let (changed, b) = changed_pixels(&r, &ramp(&r));
         assert!(changed > 500, "the contact must show: {changed} pixels changed");
+        assert!(b[0] >= 299 && b[1] >= 199 && b[2] <= 330 && b[3] <= 220, "changed pixels in {b:?}");
+    }
+
+    /// The drape and the blur show beyond the contact's edge, as far as they reach and no farther;
+    /// with a tone curve and JPEG, no contact still gives the reference image exactly.
+    #[test]
+    fn the_membrane_drapes_and_the_lens_blurs_only_near_the_contact() {
+        let sharp = Renderer::for_crop(&unit_with(0.0, 0.0, 1.0, None));
+        for unit in [unit_with(0.5, 0.0, 1.0, None), unit_with(0.5, 0.8, 1.8, None)] {
+            let r = Renderer::for_crop(&unit);
+            let depth = ramp(&r);
+            let (_, rigid) = r.radiance(&vec![0.0; r.grid().len()]);
+            assert_eq!(rigid, 0);
+            let (changed, b) = changed_pixels(&r, &depth);
+            let drape = r.drape.unwrap();
+            // Steps until 0.8 mm has decayed below the floor, the blur's radius, the normals'.
+            let reach = (drape.decay_steps * (0.8f32 / 5e-3).ln()).ceil() as u32 + 2 + 1;
+            assert!(
+                b[0] + 3 < 300 && b[1] + 3 < 200 && b[2] > 332 && b[3] > 222,
+                "the drape must show beyond the edge: {b:?}"
+            );
+            assert!(
+                b[0] + reach >= 300 && b[1] + reach >= 200 && b[2] <= 329 + reach && b[3] <= 219 + reach,
+                "changed pixels in {b:?}, reach {reach}"
+            );
+            assert!(changed > changed_pixels(&sharp, &depth).0);
+            // The truth is untouched: the same depth map rendered twice gives the same frame.
+            assert_eq!(r.render(&depth, Some(3)), r.render(&depth, Some(3)));
+        }
+        let r = Renderer::for_crop(&unit_with(0.5, 0.8, 1.8, Some(85)));
+        assert_eq!(r.render(&vec![0.0; r.grid().len()], None), r.reference_image(1));
+        let (changed, _) = changed_pixels(&r, &ramp(&r));
+        assert!(changed > 500);
     }
 
     #[test]

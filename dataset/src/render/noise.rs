@@ -131,6 +131,20 @@ impl GaussianNoise {
         }
     }
 
+    /// Adds noise to linear values in place (for a camera whose tone curve follows).
+    pub(super) fn add(&mut self, values: &mut [f32]) {
+        let level = self.level;
+        let mut done = 0;
+        while done < values.len() {
+            let n = (values.len() - done).min(NOISE_TABLE_LEN - self.pos);
+            for (v, &z) in values[done..done + n].iter_mut().zip(&self.table[self.pos..self.pos + n]) {
+                *v += z * level.sigma(*v);
+            }
+            self.pos = (self.pos + n) % NOISE_TABLE_LEN;
+            done += n;
+        }
+    }
+
     #[inline]
     pub(super) fn add_to(&mut self, px: [f32; 3]) -> [f32; 3] {
         let out = std::array::from_fn(|c| {

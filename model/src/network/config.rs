@@ -117,13 +117,25 @@ impl DenseDepthConfig {
         [n, n / 2, n / 4, n / 8, n / 16]
     }
 
-    /// The output's height and width for an input of `[h, w]`.
+    /// The output's height and width for an input of `[h, w]`: the input's, or the stem's
+    /// (a stride-2 convolution padded by 3: half, rounded up).
     pub fn output_hw(&self, [h, w]: [usize; 2]) -> [usize; 2] {
-        if self.full_resolution { [h, w] } else { [h / 2, w / 2] }
+        if self.full_resolution { [h, w] } else { [h.div_ceil(2), w.div_ceil(2)] }
     }
 
-    /// Input sides must be multiples of this (five halvings).
-    pub const STRIDE: usize = 32;
+    /// The smallest input side: five halvings (floored by the transitions' pooling) must leave
+    /// at least one pixel. Any side from here up works; the decoder upsamples every block to its
+    /// skip's own size.
+    pub const MIN_INPUT_SIDE: usize = 32;
+
+    /// Checks an input size `[h, w]`; the error says why it is refused.
+    pub fn check_input_hw([h, w]: [usize; 2]) -> Result<(), String> {
+        let min = Self::MIN_INPUT_SIDE;
+        if h < min || w < min {
+            return Err(format!("input {h}x{w}: both sides must be at least {min} px (five halvings)"));
+        }
+        Ok(())
+    }
 
     /// Checks a configuration read from a file: every size positive and within what a network
     /// of this family could hold, so that a corrupted file is an error rather than an attempt to

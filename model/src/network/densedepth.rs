@@ -9,8 +9,8 @@ use super::densenet::DenseNetEncoder;
 use super::upsample::{Upsample, upsample_mode_for};
 
 /// DenseDepth: an encoded crop ([N, C, H, W], C = 3 for RGB in [0, 1], 6 with the reference
-/// difference; H and W multiples of 32) to depth in network units at half resolution
-/// ([N, 1, H/2, W/2]), or at the input's with `DenseDepthConfig::full_resolution`.
+/// difference; H and W at least 32, any size) to depth in network units at half resolution
+/// ([N, 1, ceil(H/2), ceil(W/2)]), or at the input's with `DenseDepthConfig::full_resolution`.
 #[derive(Module, Debug)]
 pub struct DenseDepth {
     pub encoder: DenseNetEncoder,
@@ -45,11 +45,9 @@ impl DenseDepth {
         let [_, c, h, w] = images.dims();
         let want = self.encoder.conv0.weight.dims()[1];
         assert!(c == want, "this DenseDepth takes {want} input channels ([N, {want}, H, W]), got {c}");
-        assert!(
-            h % DenseDepthConfig::STRIDE == 0 && w % DenseDepthConfig::STRIDE == 0 && h > 0 && w > 0,
-            "input sides must be positive multiples of {}, got {h}x{w}",
-            DenseDepthConfig::STRIDE
-        );
+        if let Err(e) = DenseDepthConfig::check_input_hw([h, w]) {
+            panic!("{e}");
+        }
         self.decoder.forward(self.encoder.forward(images.clone()), images, mode)
     }
 
@@ -70,11 +68,33 @@ mod tests {
     use super::*;
 
     #[test]
-    #[should_panic(expected = "multiples of 32")]
-    fn input_sides_must_be_multiples_of_32() {
+    #[should_panic(expected = "at least 32 px")]
+    fn input_sides_below_32_are_refused() {
         let device = crate::backend::default_device();
         let model = DenseDepthConfig::new(crate::network::DenseNetConfig::tiny()).init(&device);
-        model.forward(Tensor::zeros([1, 3, 48, 64], &device));
+        model.forward(Tensor::zeros([1, 3, 31, 64], &device));
+    }
+
+    /// Sides that are not multiples of 32 (odd ones included) give the output size
+    /// `output_hw` promises, at half and at full resolution, and the folded inference network
+    /// agrees with the training graph on them.
+    #[test]
+    fn any_input_size_from_32_gives_the_promised_output() {
+        use burn::tensor::{Distribution, Tolerance};
+        let device = crate::backend::default_device();
+        for full_resolution in [false, true] {
+            let config =
+                DenseDepthConfig::new(crate::network::DenseNetConfig::tiny()).with_full_resolution(full_resolution);
+            let model = config.init(&device);
+            for [h, w] in [[32, 32], [33, 47], [75, 100], [97, 64]] {
+                let x = Tensor::<4>::random([2, 3, h, w], Distribution::Uniform(0.0, 1.0), &device);
+                let out = model.forward(x.clone());
+                let [n, c, oh, ow] = out.dims();
+                assert_eq!([n, c, oh, ow], [2, 1, config.output_hw([h, w])[0], config.output_hw([h, w])[1]]);
+                let folded = model.clone().folded().forward(x);
+                folded.into_data().assert_approx_eq::<f32>(&out.into_data(), Tolerance::rel_abs(1e-4, 1e-5));
+            }
+        }
     }
 
     #[test]

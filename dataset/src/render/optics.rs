@@ -1,0 +1,341 @@
+//! What stands between the pressed shape and the recorded bytes, beyond the lighting: the gel's
+//! drape, the lens' blur, the camera's tone curve and its JPEG stream.
+//!
+//! Each stage works only where a frame differs from the unit's no-contact image (the drape and
+//! the blur on the changed samples' bounding box, grown by their reach), so a frame with a small
+//! contact costs little more than one without.
+
+use std::borrow::Cow;
+
+/// Below this (mm) a drape is invisible in the shading and is cut, so that the changed region
+/// stays bounded: 5 um spread over a decay length of a few pixels tilts the normal by well under
+/// a tenth of a degree, less than a grey level.
+const DRAPE_FLOOR_MM: f32 = 5e-3;
+
+/// The membrane's drape beyond contact edges: every sample takes the largest of its neighbours'
+/// depths, each attenuated by `exp(-distance / decay)`, and its own. Distances are chamfer
+/// distances (steps of 1 and sqrt 2 over the grid), so two raster passes compute it exactly for
+/// that metric. Inside a contact the rigid depth wins: the indenter holds the membrane there.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Drape {
+    /// Attenuation over one grid step and over one diagonal step.
+    straight: f32,
+    diagonal: f32,
+    pub(super) decay_steps: f32,
+}
+
+impl Drape {
+    /// `None` where the membrane follows the indenter (a decay of zero).
+    pub(super) fn new(decay_mm: f64, mm_per_step: f64) -> Option<Self> {
+        let decay_steps = (decay_mm / mm_per_step) as f32;
+        (decay_steps.is_finite() && decay_steps > 1e-3).then(|| Drape {
+            straight: (-1.0 / decay_steps).exp(),
+            diagonal: (-std::f32::consts::SQRT_2 / decay_steps).exp(),
+            decay_steps,
+        })
+    }
+
+    /// The shape the membrane takes over the rigid `depth_mm` on a `width`-wide grid.
+    ///
+    /// Each pass takes a row's neighbours in the row before (above, and the two diagonals) in
+    /// one vectorised step, then runs along the row for the neighbour before it in the row: only
+    /// that scan is serial.
+    pub(super) fn apply<'a>(&self, depth_mm: &'a [f32], width: usize) -> Cow<'a, [f32]> {
+        let height = depth_mm.len() / width;
+        let Some(bbox) = BoundingBox::of_positive(depth_mm, width) else {
+            return Cow::Borrowed(depth_mm);
+        };
+        let deepest = depth_mm.iter().fold(0f32, |m, &d| m.max(d));
+        let reach = (self.decay_steps * (deepest / DRAPE_FLOOR_MM).ln().max(0.0)).ceil() as usize;
+        let b = bbox.grown(reach, width, height);
+        let (bw, bh) = (b.x1 - b.x0, b.y1 - b.y0);
+        // The box alone, row by row, with a zero column on either side for the diagonals.
+        let stride = bw + 2;
+        let mut grid = vec![0f32; stride * bh];
+        for y in 0..bh {
+            let src = &depth_mm[(b.y0 + y) * width + b.x0..][..bw];
+            grid[y * stride + 1..][..bw].copy_from_slice(src);
+        }
+        self.pass(&mut grid, stride, (0..bh).collect::<Vec<_>>(), |y| y.checked_sub(1));
+        // Backwards: rows from the bottom, each row scanned from the right (reversed in place).
+        for row in grid.chunks_exact_mut(stride) {
+            row.reverse();
+        }
+        self.pass(&mut grid, stride, (0..bh).rev().collect::<Vec<_>>(), |y| (y + 1 < bh).then_some(y + 1));
+        for row in grid.chunks_exact_mut(stride) {
+            row.reverse();
+        }
+        let mut out = depth_mm.to_vec();
+        for y in 0..bh {
+            let dst = &mut out[(b.y0 + y) * width + b.x0..][..bw];
+            for (o, &g) in dst.iter_mut().zip(&grid[y * stride + 1..][..bw]) {
+                // Where the indenter is the membrane is the indenter; elsewhere a drape under
+                // the floor is cut.
+                *o = if *o > 0.0 || g >= DRAPE_FLOOR_MM { o.max(g) } else { 0.0 };
+            }
+        }
+        Cow::Owned(out)
+    }
+
+    /// One raster pass over `grid` (rows of `stride` with a zero border column each side) in
+    /// the row order `rows`; `previous(y)` is the row already done before row `y`.
+    fn pass(&self, grid: &mut [f32], stride: usize, rows: Vec<usize>, previous: impl Fn(usize) -> Option<usize>) {
+        let (a, d) = (self.straight, self.diagonal);
+        let mut from = vec![0f32; stride];
+        for y in rows {
+            if let Some(p) = previous(y) {
+                from.copy_from_slice(&grid[p * stride..][..stride]);
+                let row = &mut grid[y * stride..][..stride];
+                for x in 1..stride - 1 {
+                    let v = (from[x] * a).max(from[x - 1] * d).max(from[x + 1] * d);
+                    row[x] = row[x].max(v);
+                }
+            }
+            let row = &mut grid[y * stride..][..stride];
+            let mut carry = 0f32;
+            for v in &mut row[1..stride - 1] {
+                // Runs far from any contact stay zero without the serial multiply.
+                if carry < DRAPE_FLOOR_MM && *v == 0.0 {
+                    carry = 0.0;
+                    continue;
+                }
+                carry = v.max(carry * a);
+                *v = carry;
+            }
+        }
+    }
+}
+
+/// A half-open rectangle of grid samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct BoundingBox {
+    pub(super) x0: usize,
+    pub(super) y0: usize,
+    pub(super) x1: usize,
+    pub(super) y1: usize,
+}
+
+impl BoundingBox {
+    /// The smallest box holding every sample of `depth` (rows of `width`) above zero; `None` if
+    /// none is.
+    fn of_positive(depth: &[f32], width: usize) -> Option<Self> {
+        let mut b: Option<BoundingBox> = None;
+        for (y, row) in depth.chunks_exact(width).enumerate() {
+            let Some(first) = row.iter().position(|&d| d > 0.0) else {
+                continue;
+            };
+            let last = row.iter().rposition(|&d| d > 0.0).unwrap_or(first);
+            let bb = b.get_or_insert(BoundingBox { x0: first, y0: y, x1: last + 1, y1: y + 1 });
+            bb.x0 = bb.x0.min(first);
+            bb.x1 = bb.x1.max(last + 1);
+            bb.y1 = y + 1;
+        }
+        b
+    }
+
+    fn grown(self, by: usize, width: usize, height: usize) -> Self {
+        BoundingBox {
+            x0: self.x0.saturating_sub(by),
+            y0: self.y0.saturating_sub(by),
+            x1: (self.x1 + by).min(width),
+            y1: (self.y1 + by).min(height),
+        }
+    }
+}
+
+/// A Gaussian point spread, truncated at one and a half standard deviations (at least one
+/// sample) and normalised, applied
+/// separably with zero padding (so it is linear: blurring the reference once and each frame's
+/// change to it gives the blurred frame).
+#[derive(Clone, Debug)]
+pub(super) struct LensBlur {
+    weights: Vec<f32>,
+}
+
+impl LensBlur {
+    /// `None` for a sharp lens.
+    pub(super) fn new(sigma_steps: f64) -> Option<Self> {
+        if !(sigma_steps.is_finite() && sigma_steps > 0.05) {
+            return None;
+        }
+        let radius = (1.5 * sigma_steps).ceil().max(1.0) as i32;
+        let raw: Vec<f64> = (-radius..=radius).map(|k| (-0.5 * (k as f64 / sigma_steps).powi(2)).exp()).collect();
+        let sum: f64 = raw.iter().sum();
+        Some(LensBlur { weights: raw.iter().map(|w| (w / sum) as f32).collect() })
+    }
+
+    fn radius(&self) -> usize {
+        self.weights.len() / 2
+    }
+
+    /// Blurs the whole RGB `image` of `width` samples a row.
+    pub(super) fn whole(&self, image: &[[f32; 3]], width: usize) -> Vec<[f32; 3]> {
+        let height = image.len() / width;
+        self.rows(image, 0, width, height).1
+    }
+
+    /// Blurs `rows` (whole rows of a `width` x `height` grid, the first being row `y0`; zero
+    /// everywhere else): returns the first row the blur reaches and the blurred rows from there
+    /// (the given ones grown by the kernel's radius, within the grid).
+    pub(super) fn rows(&self, rows: &[[f32; 3]], y0: usize, width: usize, height: usize) -> (usize, Vec<[f32; 3]>) {
+        let r = self.radius();
+        let n = rows.len() / width;
+        let row_len = 3 * width;
+        // Along each row, on the interleaved values (a tap is three values away per sample).
+        let mut across = vec![0f32; rows.len() * 3];
+        for (dst, src) in across.chunks_exact_mut(row_len).zip(rows.as_flattened().chunks_exact(row_len)) {
+            for (k, &w) in self.weights.iter().enumerate() {
+                // Output sample x reads input sample x + k - r.
+                let shift = 3 * k.abs_diff(r);
+                if shift >= row_len {
+                    continue;
+                }
+                let (d, s) = if k >= r {
+                    (&mut dst[..row_len - shift], &src[shift..])
+                } else {
+                    (&mut dst[shift..], &src[..row_len - shift])
+                };
+                for (d, s) in d.iter_mut().zip(s) {
+                    *d += w * s;
+                }
+            }
+        }
+        // Then down the columns, whole rows at a time.
+        let (first, last) = (y0.saturating_sub(r), (y0 + n + r).min(height));
+        let mut out = vec![[0f32; 3]; (last - first) * width];
+        for (y, dst) in (first..last).zip(out.as_flattened_mut().chunks_exact_mut(row_len)) {
+            for (k, &w) in self.weights.iter().enumerate() {
+                // Output row y reads row y + k - r, if it is one of the given rows.
+                let Some(src_row) = (y + k).checked_sub(r + y0).filter(|&j| j < n) else {
+                    continue;
+                };
+                for (d, s) in dst.iter_mut().zip(&across[src_row * row_len..][..row_len]) {
+                    *d += w * s;
+                }
+            }
+        }
+        (first, out)
+    }
+}
+
+/// The camera's tone curve from linear grey levels to 8 bits, as a table over sixteenths of a
+/// level (a power law costs too much per value; the table's rounding is at most 1/32 level
+/// before the curve).
+#[derive(Clone, Debug)]
+pub(super) struct Tone {
+    table: Vec<u8>,
+}
+
+/// Table entries per grey level.
+const TONE_STEPS: f32 = 16.0;
+
+impl Tone {
+    /// `None` for a linear camera (gamma 1), which rounds directly.
+    pub(super) fn new(gamma: f64) -> Option<Self> {
+        if (gamma - 1.0).abs() < 1e-9 {
+            return None;
+        }
+        let n = (255.0 * TONE_STEPS) as usize + 1;
+        let table = (0..n)
+            .map(|k| {
+                let v = k as f64 / TONE_STEPS as f64 / 255.0;
+                (255.0 * v.powf(1.0 / gamma)).round().clamp(0.0, 255.0) as u8
+            })
+            .collect();
+        Some(Tone { table })
+    }
+
+    /// One linear value to 8 bits (NaN becomes 0, as in [`super::noise::quantise`]).
+    #[inline(always)]
+    pub(super) fn apply(&self, v: f32) -> u8 {
+        self.table[(v.clamp(0.0, 255.0) * TONE_STEPS + 0.5) as usize]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A plateau's drape falls off as exp(-distance / decay) along a row and never touches the
+    /// plateau itself; far away nothing changes.
+    #[test]
+    fn drape_decays_exponentially_beyond_an_edge() {
+        let (w, h) = (80, 40);
+        let mut depth = vec![0f32; w * h];
+        for y in 10..30 {
+            for x in 10..30 {
+                depth[y * w + x] = 2.0;
+            }
+        }
+        let drape = Drape::new(3.0, 1.0).unwrap();
+        let out = drape.apply(&depth, w);
+        for y in 10..30 {
+            for x in 10..30 {
+                assert_eq!(out[y * w + x], 2.0);
+            }
+        }
+        for k in 1..10 {
+            let got = out[20 * w + 29 + k];
+            let want = 2.0 * (-(k as f32) / 3.0).exp();
+            assert!((got - want).abs() < 1e-5 * want.max(1.0), "{k} steps out: {got} vs {want}");
+        }
+        // Beyond the floor's reach the depth is exactly zero again.
+        assert_eq!(out[20 * w + 79], 0.0);
+        assert!(out.iter().zip(&depth).all(|(o, d)| o >= d), "the drape never lifts the membrane off the indenter");
+        // No contact: nothing to do, and the input is handed back as it was.
+        assert!(matches!(drape.apply(&vec![0.0; w * h], w), Cow::Borrowed(_)));
+        assert!(Drape::new(0.0, 0.1).is_none());
+    }
+
+    /// The blur keeps a constant image constant away from the borders, keeps the total, and
+    /// blurring a change gives what blurring the whole image does.
+    #[test]
+    fn blur_is_normalised_and_linear() {
+        let blur = LensBlur::new(0.8).unwrap();
+        let sum: f32 = blur.weights.iter().sum();
+        assert!((sum - 1.0).abs() < 1e-6);
+        let (w, h) = (30, 20);
+        let flat = vec![[10.0f32, 20.0, 30.0]; w * h];
+        let out = blur.whole(&flat, w);
+        let mid = out[10 * w + 15];
+        assert!((mid[0] - 10.0).abs() < 1e-4 && (mid[2] - 30.0).abs() < 1e-4, "{mid:?}");
+        // A point spreads into the kernel's outer product; blurring only the rows that hold the
+        // change gives what blurring the whole image does.
+        let mut delta = vec![[0f32; 3]; w * h];
+        delta[8 * w + 12] = [1.0, 2.0, 4.0];
+        delta[9 * w + 3] = [-1.0, 0.5, 0.0];
+        let whole = blur.whole(&delta, w);
+        let (first, rows) = blur.rows(&delta[8 * w..10 * w], 8, w, h);
+        assert_eq!(first, 8 - blur.radius());
+        let mut rebuilt = vec![[0f32; 3]; w * h];
+        rebuilt[first * w..][..rows.len()].copy_from_slice(&rows);
+        for (a, b) in rebuilt.iter().zip(&whole) {
+            for c in 0..3 {
+                assert!((a[c] - b[c]).abs() < 1e-6, "{a:?} vs {b:?}");
+            }
+        }
+        let r = blur.radius();
+        let wk = |k: i32| blur.weights[(k + r as i32) as usize];
+        let got = whole[(8 + 1) * w + 12 - 1][2];
+        assert!((got - 4.0 * wk(1) * wk(-1)).abs() < 1e-6);
+        assert!(LensBlur::new(0.0).is_none());
+    }
+
+    #[test]
+    fn tone_curve_brightens_darks_and_keeps_the_ends() {
+        let tone = Tone::new(2.0).unwrap();
+        assert_eq!(tone.apply(0.0), 0);
+        assert_eq!(tone.apply(255.0), 255);
+        assert_eq!(tone.apply(1e9), 255);
+        assert_eq!(tone.apply(f32::NAN), 0);
+        // 255 * sqrt(64 / 255) = 127.75
+        assert_eq!(tone.apply(64.0), 128);
+        let mut last = 0;
+        for k in 0..=2550 {
+            let v = tone.apply(k as f32 / 10.0);
+            assert!(v >= last);
+            last = v;
+        }
+        assert!(Tone::new(1.0).is_none());
+    }
+}
