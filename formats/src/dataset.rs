@@ -5,7 +5,8 @@
 //! DIR/samples/NNNNNN.json   one record per finished sample: its scene, split and statistics
 //! DIR/depth/NNNNNN.png      depth, 16-bit grey PNG in micrometres, on the sensor's crop
 //! DIR/depth_u8/NNNNNN.png   optional: the paper's 8-bit encoding (0..255 = 0..max depth)
-//! DIR/images/NNNNNN.png     with a simulated unit: its 8-bit RGB camera image of the crop
+//! DIR/images/NNNNNN.png     with a simulated unit: its 8-bit RGB camera image of the crop (.jpg,
+//!                           the stream as sent, for a unit that streams JPEG)
 //! DIR/unit/unit.json        the unit's optics and lighting (`SensorUnit`)
 //! DIR/unit/truth.json       the unit's true sensor description (for evaluating a calibration)
 //! DIR/unit/reference.png    the unit's no-contact image of the crop, without noise
