@@ -188,6 +188,15 @@ impl SensorUnit {
         unit
     }
 
+    /// The same unit seen through the first image model (`formats::dataset::IMAGE_MODEL` 1): the
+    /// membrane follows the indenter, through a sharp, linear camera without JPEG.
+    pub fn with_first_image_model(&self) -> Self {
+        let mut unit = self.clone();
+        unit.elastomer.drape_mm = 0.0;
+        unit.camera = Camera { blur_px: 0.0, gamma: 1.0, jpeg_quality: None, ..unit.camera };
+        unit
+    }
+
     /// Checks the unit's numbers; the error says which is wrong.
     pub fn validate(&self) -> Result<(), String> {
         self.sensor.validate().map_err(|e| e.to_string())?;

@@ -197,7 +197,7 @@ pub fn encode_png_rgb(img: &RgbImage) -> Vec<u8> {
 }
 
 /// Encodes an RGB image as JPEG at `quality` (1..=100), as USB cameras stream it (MJPEG).
-/// Sides beyond JPEG's 65535 are refused by the encoder; no sensor frame comes near.
+/// Panics on a side beyond JPEG's 65535, which no sensor frame comes near.
 pub fn encode_jpeg_rgb(img: &RgbImage, quality: u8) -> Vec<u8> {
     let mut out = Vec::with_capacity(img.len() / 8);
     let (w, h) = (u16::try_from(img.width()), u16::try_from(img.height()));

@@ -32,8 +32,8 @@ pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device) -> Resu
 /// is no test error instead of a figure over part of it.
 pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path, inputs: &[&Path]) -> Result<()> {
     // The test error is the bundle's unit's (`data`); other units' folders are inputs too.
-    let mut all_inputs = vec![state.config.data.as_path()];
-    all_inputs.extend(state.config.more_data.iter().map(|p| p.as_path()));
+    let folders = state.config.folders();
+    let mut all_inputs: Vec<&Path> = folders.iter().map(|p| p.as_path()).collect();
     all_inputs.extend(inputs);
     formats::output::check_dir(out, formats::output::OutputKind::Bundle, &all_inputs)?;
     let mut test = DepthDataset::open(&state.config.data, Some(Split::Test), state.config.input_hw)?;

@@ -117,14 +117,7 @@ pub fn select(config: &FitConfig) -> Result<(DepthDataset, DepthDataset)> {
         ids.sort_unstable();
         train.keep(&ids);
     }
-    let mut val = DepthDataset::open_all(&folders, Some(Split::Test), config.input_hw)?;
-    if config.val_fraction == 0.0 && val.is_empty() {
-        bail!(
-            "{}: the dataset has no test split to validate on; hold out training samples with --val-fraction",
-            config.data.display()
-        );
-    }
-    if config.val_fraction > 0.0 {
+    let mut val = if config.val_fraction > 0.0 {
         // Hold out a seeded part of the training samples; the test split stays unseen.
         let n = train.len();
         if n < 2 {
@@ -135,10 +128,20 @@ pub fn select(config: &FitConfig) -> Result<(DepthDataset, DepthDataset)> {
         let mut is_val = vec![false; n];
         order.iter().take(held).for_each(|&i| is_val[i] = true);
         let (v, t): (Vec<usize>, Vec<usize>) = (0..n).partition(|&i| is_val[i]);
-        val = train.clone();
+        let mut val = train.clone();
         val.keep(&v);
         train.keep(&t);
-    }
+        val
+    } else {
+        let test = DepthDataset::open_all(&folders, Some(Split::Test), config.input_hw)?;
+        if test.is_empty() {
+            bail!(
+                "{}: the dataset has no test split to validate on; hold out training samples with --val-fraction",
+                config.data.display()
+            );
+        }
+        test
+    };
     let scale = config.scale(train.sensor.max_depth_mm);
     train.scale = scale;
     val.scale = scale;

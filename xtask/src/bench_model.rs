@@ -87,10 +87,10 @@ pub fn run(args: Args) -> Result<()> {
         let mut net = config.init(&train_device);
         let mut optim = AdamConfig::new().init();
         let loss_config = DepthLossConfig::new();
+        let [oh, ow] = config.output_hw([h, w]);
         let step = if devices.len() == 1 {
             let images = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &train_device);
-            let target =
-                Tensor::<4>::random([batch, 1, h / 2, w / 2], Distribution::Uniform(10.0, 1000.0), &train_device);
+            let target = Tensor::<4>::random([batch, 1, oh, ow], Distribution::Uniform(10.0, 1000.0), &train_device);
             time_ms(args.reps, || {
                 let loss = loss_config.forward(net.forward(images.clone()), target.clone()).total;
                 let grads = GradientsParams::from_grads(loss.backward(), &net);
@@ -100,7 +100,6 @@ pub fn run(args: Args) -> Result<()> {
         } else {
             // The training loop's own data parallelism, on a batch of random samples (every
             // pixel useful, so the masked loss is the loss above).
-            let [oh, ow] = config.output_hw([h, w]);
             let batcher = DepthBatcher { input_hw: [h, w], output_hw: [oh, ow] };
             let parallel = DataParallel::new(&devices, batcher, loss_config.clone())?;
             let mut rng = formats::SplitMix64::for_item(7, batch as u64);

@@ -144,9 +144,7 @@ fn train_seed(
         ..recipe(data, plan.input)
     };
     let start = Start {
-        model_config: DenseDepthConfig::new(DenseNetConfig::by_name(plan.preset).map_err(anyhow::Error::msg)?)
-            .with_input(args.channels)
-            .with_full_resolution(!args.half_resolution),
+        model_config: network(plan.preset)?.with_input(args.channels).with_full_resolution(!args.half_resolution),
         weights: None,
     };
     fit(run_dir, &config, start, device, true).context("training (run again to resume)")

@@ -249,9 +249,9 @@ impl Renderer {
         (indices, values)
     }
 
-    /// The samples whose shading `depth_mm` changes (in grid order) and their sharp values.
+    /// The samples whose shading `depth_mm` (checked by the caller to fit the grid) changes, in
+    /// grid order, and their sharp values.
     fn changes(&self, depth_mm: &[f32]) -> (Vec<u32>, Radiance) {
-        assert_eq!(depth_mm.len(), self.grid.len(), "depth map does not match the render grid");
         let mut dirty = vec![false; self.grid.len()];
         for (i, &d) in depth_mm.iter().enumerate() {
             if d != 0.0 {
@@ -460,10 +460,19 @@ mod tests {
     }
 
     #[test]
+    fn the_first_image_model_is_the_rigid_sharp_linear_camera() {
+        let unit = SensorUnit::from_seed(1, 25.0).with_first_image_model();
+        assert_eq!((unit.elastomer.drape_mm, unit.camera.blur_px, unit.camera.gamma), (0.0, 0.0, 1.0));
+        assert_eq!(unit.camera.jpeg_quality, None);
+        let r = Renderer::for_crop(&unit);
+        assert!(r.drape.is_none() && r.blur.is_none() && r.tone.is_none());
+    }
+
+    #[test]
     fn no_contact_is_the_reference_and_a_rigid_contact_changes_only_its_neighbourhood() {
         // A membrane that follows the indenter, a sharp linear camera: the normals' one-pixel
         // reach is all.
-        let r = Renderer::for_crop(&unit_with(0.0, 0.0, 1.0, None));
+        let r = Renderer::for_crop(&SensorUnit::nominal(Sensor::default()).with_first_image_model());
         let zeros = vec![0.0; r.grid().len()];
         assert_eq!(r.render(&zeros, None), r.reference_image(1));
         let (_, shaded) = r.radiance(&zeros);
@@ -477,7 +486,7 @@ mod tests {
     /// with a tone curve and JPEG, no contact still gives the reference image exactly.
     #[test]
     fn the_membrane_drapes_and_the_lens_blurs_only_near_the_contact() {
-        let sharp = Renderer::for_crop(&unit_with(0.0, 0.0, 1.0, None));
+        let sharp = Renderer::for_crop(&SensorUnit::nominal(Sensor::default()).with_first_image_model());
         for unit in [unit_with(0.5, 0.0, 1.0, None), unit_with(0.5, 0.8, 1.8, None)] {
             let r = Renderer::for_crop(&unit);
             let depth = ramp(&r);
@@ -486,7 +495,7 @@ mod tests {
             let (changed, b) = changed_pixels(&r, &depth);
             let drape = r.drape.unwrap();
             // Steps until 0.8 mm has decayed below the floor, the blur's radius, the normals'.
-            let reach = (drape.decay_steps * (0.8f32 / 5e-3).ln()).ceil() as u32 + 2 + 1;
+            let reach = (drape.decay_steps * (0.8f32 / optics::DRAPE_FLOOR_MM).ln()).ceil() as u32 + 2 + 1;
             assert!(
                 b[0] + 3 < 300 && b[1] + 3 < 200 && b[2] > 332 && b[3] > 222,
                 "the drape must show beyond the edge: {b:?}"

@@ -122,10 +122,17 @@ impl GaussianNoise {
     /// Hands `kernel` contiguous runs of values with their normals, wrapping at the table's end.
     #[inline(always)]
     fn add_quantised_runs(&mut self, values: &[f32], out: &mut [u8], kernel: impl Fn(&[f32], &[f32], &mut [u8])) {
+        self.runs(values.len(), |range, normals| kernel(&values[range.clone()], normals, &mut out[range]))
+    }
+
+    /// Splits `len` values into contiguous runs, each with as many normals from the table,
+    /// wrapping at the table's end: `each(run's range, its normals)`.
+    #[inline(always)]
+    fn runs(&mut self, len: usize, mut each: impl FnMut(std::ops::Range<usize>, &[f32])) {
         let mut done = 0;
-        while done < values.len() {
-            let n = (values.len() - done).min(NOISE_TABLE_LEN - self.pos);
-            kernel(&values[done..done + n], &self.table[self.pos..self.pos + n], &mut out[done..done + n]);
+        while done < len {
+            let n = (len - done).min(NOISE_TABLE_LEN - self.pos);
+            each(done..done + n, &self.table[self.pos..self.pos + n]);
             self.pos = (self.pos + n) % NOISE_TABLE_LEN;
             done += n;
         }
@@ -134,15 +141,11 @@ impl GaussianNoise {
     /// Adds noise to linear values in place (for a camera whose tone curve follows).
     pub(super) fn add(&mut self, values: &mut [f32]) {
         let level = self.level;
-        let mut done = 0;
-        while done < values.len() {
-            let n = (values.len() - done).min(NOISE_TABLE_LEN - self.pos);
-            for (v, &z) in values[done..done + n].iter_mut().zip(&self.table[self.pos..self.pos + n]) {
+        self.runs(values.len(), |range, normals| {
+            for (v, &z) in values[range].iter_mut().zip(normals) {
                 *v += z * level.sigma(*v);
             }
-            self.pos = (self.pos + n) % NOISE_TABLE_LEN;
-            done += n;
-        }
+        })
     }
 
     #[inline]

@@ -1,16 +1,16 @@
 //! What stands between the pressed shape and the recorded bytes, beyond the lighting: the gel's
 //! drape, the lens' blur, the camera's tone curve and its JPEG stream.
 //!
-//! Each stage works only where a frame differs from the unit's no-contact image (the drape and
-//! the blur on the changed samples' bounding box, grown by their reach), so a frame with a small
-//! contact costs little more than one without.
+//! Each stage works only where a frame differs from the unit's no-contact image (the drape on the
+//! contact's bounding box grown by its reach, the blur on the rows the change touches grown by
+//! its radius), so a frame with a small contact costs little more than one without.
 
 use std::borrow::Cow;
 
 /// Below this (mm) a drape is invisible in the shading and is cut, so that the changed region
 /// stays bounded: 5 um spread over a decay length of a few pixels tilts the normal by well under
 /// a tenth of a degree, less than a grey level.
-const DRAPE_FLOOR_MM: f32 = 5e-3;
+pub(super) const DRAPE_FLOOR_MM: f32 = 5e-3;
 
 /// The membrane's drape beyond contact edges: every sample takes the largest of its neighbours'
 /// depths, each attenuated by `exp(-distance / decay)`, and its own. Distances are chamfer
@@ -56,12 +56,12 @@ impl Drape {
             let src = &depth_mm[(b.y0 + y) * width + b.x0..][..bw];
             grid[y * stride + 1..][..bw].copy_from_slice(src);
         }
-        self.pass(&mut grid, stride, (0..bh).collect::<Vec<_>>(), |y| y.checked_sub(1));
+        self.pass(&mut grid, stride, 0..bh, |y| y.checked_sub(1));
         // Backwards: rows from the bottom, each row scanned from the right (reversed in place).
         for row in grid.chunks_exact_mut(stride) {
             row.reverse();
         }
-        self.pass(&mut grid, stride, (0..bh).rev().collect::<Vec<_>>(), |y| (y + 1 < bh).then_some(y + 1));
+        self.pass(&mut grid, stride, (0..bh).rev(), |y| (y + 1 < bh).then_some(y + 1));
         for row in grid.chunks_exact_mut(stride) {
             row.reverse();
         }
@@ -79,7 +79,13 @@ impl Drape {
 
     /// One raster pass over `grid` (rows of `stride` with a zero border column each side) in
     /// the row order `rows`; `previous(y)` is the row already done before row `y`.
-    fn pass(&self, grid: &mut [f32], stride: usize, rows: Vec<usize>, previous: impl Fn(usize) -> Option<usize>) {
+    fn pass(
+        &self,
+        grid: &mut [f32],
+        stride: usize,
+        rows: impl Iterator<Item = usize>,
+        previous: impl Fn(usize) -> Option<usize>,
+    ) {
         let (a, d) = (self.straight, self.diagonal);
         let mut from = vec![0f32; stride];
         for y in rows {
@@ -108,11 +114,11 @@ impl Drape {
 
 /// A half-open rectangle of grid samples.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) struct BoundingBox {
-    pub(super) x0: usize,
-    pub(super) y0: usize,
-    pub(super) x1: usize,
-    pub(super) y1: usize,
+struct BoundingBox {
+    x0: usize,
+    y0: usize,
+    x1: usize,
+    y1: usize,
 }
 
 impl BoundingBox {
@@ -144,9 +150,8 @@ impl BoundingBox {
 }
 
 /// A Gaussian point spread, truncated at one and a half standard deviations (at least one
-/// sample) and normalised, applied
-/// separably with zero padding (so it is linear: blurring the reference once and each frame's
-/// change to it gives the blurred frame).
+/// sample) and normalised, applied separably with zero padding (so it is linear: blurring the
+/// reference once and each frame's change to it gives the blurred frame).
 #[derive(Clone, Debug)]
 pub(super) struct LensBlur {
     weights: Vec<f32>,
