@@ -78,37 +78,43 @@ pub fn remove_temporaries(dir: &Path) -> Result<(), FsError> {
     Ok(())
 }
 
+/// A PNG's last chunk, `IEND` (empty, with its CRC).
+const PNG_IEND: [u8; 12] = [0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xae, 0x42, 0x60, 0x82];
+/// A JPEG's end-of-image marker.
+const JPEG_EOI: [u8; 2] = [0xff, 0xd9];
+/// The smallest PNG: signature, `IHDR`, `IEND`.
+const PNG_MIN_LEN: u64 = 8 + 25 + 12;
+
+/// The last `N` bytes of the file at `path` if it has at least `min_len` bytes.
+fn file_tail<const N: usize>(path: &Path, min_len: u64) -> Option<[u8; N]> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = std::fs::File::open(path).ok()?;
+    if f.metadata().ok()?.len() < min_len.max(N as u64) {
+        return None;
+    }
+    f.seek(SeekFrom::End(-(N as i64))).ok()?;
+    let mut tail = [0u8; N];
+    f.read_exact(&mut tail).ok()?;
+    Some(tail)
+}
+
 /// Whether a PNG file ends with its `IEND` chunk: a cheap check that it was written whole.
 pub fn png_is_complete(path: &Path) -> bool {
-    use std::io::{Read, Seek, SeekFrom};
-    const IEND: [u8; 12] = [0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xae, 0x42, 0x60, 0x82];
-    let tail = (|| {
-        let mut f = std::fs::File::open(path)?;
-        if f.metadata()?.len() < 8 + 25 + 12 {
-            return Ok::<_, std::io::Error>(None);
-        }
-        f.seek(SeekFrom::End(-12))?;
-        let mut tail = [0u8; 12];
-        f.read_exact(&mut tail)?;
-        Ok(Some(tail))
-    })();
-    matches!(tail, Ok(Some(t)) if t == IEND)
+    file_tail::<12>(path, PNG_MIN_LEN) == Some(PNG_IEND)
 }
 
 /// Whether a JPEG file ends with its end-of-image marker: a cheap check that it was written whole.
 pub fn jpeg_is_complete(path: &Path) -> bool {
-    use std::io::{Read, Seek, SeekFrom};
-    let tail = (|| {
-        let mut f = std::fs::File::open(path)?;
-        if f.metadata()?.len() < 4 {
-            return Ok::<_, std::io::Error>(None);
-        }
-        f.seek(SeekFrom::End(-2))?;
-        let mut tail = [0u8; 2];
-        f.read_exact(&mut tail)?;
-        Ok(Some(tail))
-    })();
-    matches!(tail, Ok(Some([0xff, 0xd9])))
+    file_tail::<2>(path, 4) == Some(JPEG_EOI)
+}
+
+/// Whether `bytes` are a whole PNG or JPEG (by signature, then end marker): a file another
+/// program is still writing is not.
+pub fn image_bytes_complete(bytes: &[u8]) -> bool {
+    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+        return bytes.len() as u64 >= PNG_MIN_LEN && bytes.ends_with(&PNG_IEND);
+    }
+    bytes.starts_with(&[0xff, 0xd8]) && bytes.len() >= 4 && bytes.ends_with(&JPEG_EOI)
 }
 
 /// Writes several files so that either all of them are replaced or none: each is written to a
@@ -186,6 +192,17 @@ mod tests {
         std::fs::write(&path, b"").unwrap();
         assert!(!png_is_complete(&path));
         assert!(!png_is_complete(&dir.path().join("missing.png")));
+
+        // The same in memory, and for JPEG; a cut JPEG or one file's bytes under another's
+        // signature is not whole.
+        assert!(image_bytes_complete(&bytes));
+        assert!(!image_bytes_complete(&bytes[..bytes.len() - 1]));
+        let jpeg = sensor::frame::encode_jpeg_rgb(&image::RgbImage::new(16, 16), 90);
+        assert!(image_bytes_complete(&jpeg));
+        assert!(!image_bytes_complete(&jpeg[..jpeg.len() - 1]));
+        assert!(!image_bytes_complete(&jpeg[2..]));
+        std::fs::write(&path, &jpeg).unwrap();
+        assert!(jpeg_is_complete(&path) && !png_is_complete(&path));
     }
 
     #[test]

@@ -26,6 +26,8 @@ pub enum OutputKind {
     Bundle,
     /// `infer eval --out`.
     Evaluation,
+    /// `infer stream --out`: per-frame depth and clouds, the stream's latency report.
+    Stream,
     /// The quickstart's and the benchmarks' own folders.
     Work,
 }
@@ -38,6 +40,7 @@ impl OutputKind {
             OutputKind::Run => "a training run",
             OutputKind::Bundle => "a bundle",
             OutputKind::Evaluation => "an evaluation",
+            OutputKind::Stream => "a stream's results",
             OutputKind::Work => "a work folder",
         }
     }

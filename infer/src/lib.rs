@@ -9,6 +9,7 @@ pub mod icp;
 pub mod kdtree;
 pub mod plot;
 pub mod predictor;
+pub mod stream;
 
 pub use cloud::{PointCloud, write_ply};
 pub use predictor::{InferError, Predictor};

@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 use infer::Predictor;
 use infer::cloud::ply_bytes;
 use infer::eval::CONTACT_THRESHOLD_MM;
+use infer::stream::{FolderSink, FolderSource, GlobSource, Sink, Source, StreamLimits};
 
 #[derive(Parser)]
 #[command(name = "infer", version, about = "DenseTact depth, contact and point clouds from camera frames")]
@@ -54,6 +55,42 @@ enum Command {
         split: String,
         #[arg(long)]
         out: PathBuf,
+        /// Keep the network's own reading of the reference frame (by default subtracted).
+        #[arg(long)]
+        no_tare: bool,
+    },
+    /// Frames as they come: depth, contact and point clouds per frame, stale frames dropped
+    /// when the network falls behind, throughput and latency percentiles at the end (Ctrl-C
+    /// ends a live stream and still writes them).
+    Stream {
+        #[arg(long)]
+        bundle: PathBuf,
+        /// A folder (its new frames, each once, in name order, as they appear), a glob of
+        /// existing frames (quote it: 'frames/*.png'), or a V4L2 camera (/dev/videoN, with the
+        /// `v4l2` feature).
+        #[arg(long)]
+        source: String,
+        /// Per frame depth/NAME.png (16-bit, micrometres) and cloud/NAME.ply (contact frames);
+        /// stream.json and frames.csv at the end.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Release a glob's frames at this rate, as a camera would (stale ones dropped);
+        /// without it every frame is processed, in order, as fast as the network goes.
+        #[arg(long)]
+        fps: Option<f64>,
+        /// Stop after this many processed frames.
+        #[arg(long)]
+        max_frames: Option<u64>,
+        /// Folder source: stop after this many seconds without a new frame (default: run
+        /// until Ctrl-C).
+        #[arg(long)]
+        idle_exit_s: Option<f64>,
+        /// Folder source: how often to look for new frames.
+        #[arg(long, default_value_t = 5)]
+        poll_ms: u64,
+        /// flex (CPU) or wgpu.
+        #[arg(long, default_value = "flex")]
+        device: String,
         /// Keep the network's own reading of the reference frame (by default subtracted).
         #[arg(long)]
         no_tare: bool,
@@ -192,6 +229,95 @@ fn predict(
     Ok(())
 }
 
+/// The source a `--source` names: a camera device, a folder, or a glob (a single file too).
+fn stream_source(
+    source: &str,
+    fps: Option<f64>,
+    poll_ms: u64,
+    idle_exit_s: Option<f64>,
+    sensor: &sensor::Sensor,
+) -> Result<Box<dyn Source>> {
+    if source.starts_with("/dev/video") {
+        return camera(source, fps, sensor);
+    }
+    let path = std::path::Path::new(source);
+    if path.is_dir() {
+        if fps.is_some() {
+            anyhow::bail!("--fps paces a glob of existing frames; a folder's frames come at their own rate");
+        }
+        let idle = match idle_exit_s {
+            Some(s) if !(s.is_finite() && s > 0.0) => anyhow::bail!("--idle-exit-s must be positive, got {s}"),
+            s => s.map(std::time::Duration::from_secs_f64),
+        };
+        let (folder, already) = FolderSource::new(path, std::time::Duration::from_millis(poll_ms.max(1)), idle)
+            .with_context(|| format!("{source}: cannot watch the folder"))?;
+        if already > 0 {
+            eprintln!(
+                "{source}: {already} frames already there are not read (a glob reads them: --source '{source}/*.png')"
+            );
+        }
+        return Ok(Box::new(folder));
+    }
+    Ok(Box::new(GlobSource::new(source, fps).map_err(anyhow::Error::msg)?))
+}
+
+#[cfg(feature = "v4l2")]
+fn camera(device: &str, fps: Option<f64>, sensor: &sensor::Sensor) -> Result<Box<dyn Source>> {
+    let camera = infer::stream::CameraSource::open(device, sensor.frame_width_px, sensor.frame_height_px, fps)
+        .with_context(|| format!("{device}: cannot stream"))?;
+    Ok(Box::new(camera))
+}
+
+#[cfg(not(feature = "v4l2"))]
+fn camera(device: &str, _fps: Option<f64>, _sensor: &sensor::Sensor) -> Result<Box<dyn Source>> {
+    anyhow::bail!("{device}: this infer was built without V4L2 cameras; build it with `--features v4l2`")
+}
+
+#[allow(clippy::too_many_arguments)]
+fn stream(
+    bundle: PathBuf,
+    source: String,
+    out: Option<PathBuf>,
+    fps: Option<f64>,
+    max_frames: Option<u64>,
+    idle_exit_s: Option<f64>,
+    poll_ms: u64,
+    device: String,
+    no_tare: bool,
+) -> Result<()> {
+    let source_path = std::path::Path::new(&source);
+    if let Some(out) = &out {
+        let watched = if source_path.is_dir() { Some(source_path) } else { None };
+        let inputs: Vec<&std::path::Path> = [Some(bundle.as_path()), watched].into_iter().flatten().collect();
+        formats::output::check_dir(out, formats::output::OutputKind::Stream, &inputs)?;
+    }
+    let dev = model::backend::working_device(&device).map_err(anyhow::Error::msg)?;
+    let predictor = load(&bundle, &dev, no_tare)?;
+    let source = stream_source(&source, fps, poll_ms, idle_exit_s, &predictor.file.sensor)?;
+    let mut folder = out.as_deref().map(FolderSink::new).transpose()?;
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, std::sync::atomic::Ordering::Relaxed))
+            .context("cannot install the Ctrl-C handler")?;
+    }
+    eprintln!("streaming {}; Ctrl-C ends it", source.describe());
+    let mut sinks: Vec<&mut dyn Sink> = Vec::new();
+    if let Some(folder) = folder.as_mut() {
+        sinks.push(folder);
+    }
+    let limits = StreamLimits { max_frames, progress_every: Some(std::time::Duration::from_secs(5)) };
+    let report = infer::stream::run(&predictor, source, &mut sinks, &limits, &stop)?;
+    println!("{}", report.summary());
+    let test = infer::bench::recorded_test_l1_mm(&predictor).map_or("not recorded".into(), |v| format!("{v:.4} mm"));
+    println!("the bundle's test L1 recorded by training (useful pixels): {test}");
+    if let (Some(folder), Some(out)) = (&folder, &out) {
+        folder.finish(&report)?;
+        println!("wrote {}/stream.json, frames.csv, depth/, cloud/", out.display());
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
     model::backend::cpu_unless_asked();
     sensor::alloc::keep_freed_memory();
@@ -200,6 +326,9 @@ fn main() -> ExitCode {
             predict(bundle, image, depth_out, colour_out, ply, always, no_tare)
         }
         Command::Eval { bundle, data, split, out, no_tare } => eval(bundle, data, split, out, no_tare),
+        Command::Stream { bundle, source, out, fps, max_frames, idle_exit_s, poll_ms, device, no_tare } => {
+            stream(bundle, source, out, fps, max_frames, idle_exit_s, poll_ms, device, no_tare)
+        }
         Command::Bench { bundle, image, device, repeats } => bench(bundle, image, device, repeats),
     };
     match result {

@@ -1,42 +1,17 @@
 //! Prediction from a bundle: the contact gate, shapes and masks, bad frames, the CLI's files, and
 //! the crate's dependencies.
 
+mod common;
+
 use std::path::Path;
 use std::process::Command;
 
+use common::{bundle, bundle_file, pressed};
+
 use dataset::{Renderer, SensorUnit};
 use infer::Predictor;
-use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, write_bundle};
-use model::{DenseDepthConfig, DenseNetConfig, DepthScale};
-
-/// The description of a bundle of `model` at 64x64 for `unit`.
-fn bundle_file(model: DenseDepthConfig, unit: &SensorUnit) -> BundleFile {
-    BundleFile {
-        format_version: BUNDLE_FORMAT_VERSION,
-        input_encoding: model.input.encoding().into(),
-        model,
-        input_height_px: 64,
-        input_width_px: 64,
-        depth_scale: DepthScale::paper(unit.sensor.max_depth_mm as f32),
-        sensor: unit.sensor.clone(),
-        reference_image: None,
-        training: None,
-        weights_sha256: Default::default(),
-    }
-}
-
-/// A bundle with an untrained tiny network for simulated unit 3, with its reference image.
-fn bundle(dir: &Path) -> Renderer {
-    let unit = SensorUnit::from_seed(3, 25.0);
-    let renderer = Renderer::for_crop(&unit);
-    let device = model::backend::default_device();
-    device.seed(1);
-    let net = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&device);
-    let file = bundle_file(DenseDepthConfig::new(DenseNetConfig::tiny()), &unit);
-    let reference = sensor::frame::encode_png_rgb(&renderer.reference_image(1));
-    write_bundle(dir, &net, &file, Some(&reference), &[]).unwrap();
-    renderer
-}
+use model::bundle::{BundleFile, write_bundle};
+use model::{DenseDepthConfig, DenseNetConfig};
 
 /// `count` samples of the procedural kit with `renderer`'s unit's images in `data`.
 fn dataset_of(renderer: &Renderer, data: &Path, count: u32, test_fraction: f32) {
@@ -66,19 +41,6 @@ fn eval(bundle: &Path, data: &Path, split: &str, out: &Path) -> std::process::Ou
         .args(["--split", split, "--out", out.to_str().unwrap()])
         .output()
         .unwrap()
-}
-
-/// A frame with a 1 mm dent in the middle.
-fn pressed(renderer: &Renderer) -> (Vec<f32>, image::RgbImage) {
-    let n = renderer.grid().width as usize;
-    let mut depth = vec![0.0; n * n];
-    for y in 260..310 {
-        for x in 260..310 {
-            depth[y * n + x] = 1.0;
-        }
-    }
-    let img = renderer.render(&depth, Some(9));
-    (depth, img)
 }
 
 #[test]

@@ -16,14 +16,20 @@ use burn::nn::BatchNorm;
 use burn::nn::conv::Conv2d;
 use burn::tensor::Tensor;
 
+// The backward passes (and the helpers only they call) serve training alone: a build without
+// `autodiff`, such as the `infer` binary's, compiles them but never calls them.
+#[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
 mod batch_norm_train;
+#[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
 mod conv;
 // Matrix products through raw pointers into disjoint parts of one buffer.
 #[allow(unsafe_code)]
+#[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
 mod conv_forward;
 mod dense_block;
 mod flex;
 #[allow(unsafe_code)]
+#[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
 mod gemm_conv;
 mod norm_relu;
 mod pool;

@@ -1,0 +1,178 @@
+//! `infer stream`: frames in as they come, depth, contact and point clouds out, at camera rate.
+//!
+//! A capture thread takes frames from a [`Source`], decodes and crops them, and hands them to
+//! the network's thread through a one-frame mailbox: on a live source the newest frame replaces
+//! a waiting one, which is dropped and counted (a robot wants the present, not a queue of the
+//! past); an offline source waits instead. Latency runs from a frame's arrival to its result
+//! having been handed to every sink.
+
+mod mailbox;
+mod report;
+mod sink;
+mod source;
+#[cfg(feature = "v4l2")]
+mod v4l2;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use image::RgbImage;
+use sensor::{CONTACT_THRESHOLD_MM, DepthMap};
+
+use crate::{PointCloud, Predictor};
+use mailbox::Mailbox;
+pub use report::{FrameRecord, Percentiles, StreamReport};
+pub use sink::{FolderSink, Sink};
+pub use source::{Delivered, Delivery, FolderSource, GlobSource, RawFrame, Source, yuyv_to_rgb};
+#[cfg(feature = "v4l2")]
+pub use v4l2::CameraSource;
+
+/// A decoded frame waiting for the network.
+pub(crate) struct Arrived {
+    pub name: String,
+    pub arrived: Instant,
+    pub image: RgbImage,
+}
+
+/// One frame's results, as sinks see them.
+pub struct FrameResult<'a> {
+    /// The frame's name (its file's path, or the camera's sequence number).
+    pub name: &'a str,
+    /// Depth on the crop's grid (mm).
+    pub depth: &'a DepthMap,
+    /// Pixels deeper than the contact threshold.
+    pub contact_pixels: usize,
+    /// Points of the contact patch (sensor frame, mm); empty without contact.
+    pub cloud: &'a PointCloud,
+    /// Whether the network ran (false: the contact gate saw an untouched frame).
+    pub network_ran: bool,
+}
+
+/// When a stream stops besides its source's end or Ctrl-C.
+#[derive(Clone, Debug, Default)]
+pub struct StreamLimits {
+    /// Stop after this many frames have been processed.
+    pub max_frames: Option<u64>,
+    /// Print a progress line this often (to stderr).
+    pub progress_every: Option<Duration>,
+}
+
+/// Why a stream failed as a whole (a single bad frame does not fail it).
+#[derive(Debug, thiserror::Error)]
+pub enum StreamError {
+    #[error("no frame could be used; the first problem: {0}")]
+    NothingUsable(String),
+    #[error("{0}")]
+    Sink(String),
+}
+
+/// Runs `source` through `predictor` until the source ends, `stop` is set (Ctrl-C) or a limit
+/// is reached, giving each frame's results to every sink. Bad frames are counted and reported
+/// by name; the stream goes on.
+pub fn run(
+    predictor: &Predictor,
+    mut source: Box<dyn Source>,
+    sinks: &mut [&mut dyn Sink],
+    limits: &StreamLimits,
+    stop: &AtomicBool,
+) -> Result<StreamReport, StreamError> {
+    let mailbox = Mailbox::new(source.delivery());
+    let mut report = StreamReport::new(source.describe(), source.delivery());
+    let mut records = Vec::new();
+    let started = Instant::now();
+    std::thread::scope(|scope| {
+        scope.spawn(|| {
+            capture(&mut *source, predictor, &mailbox, stop);
+            mailbox.close();
+        });
+        let mut last_progress = Instant::now();
+        let result = (|| {
+            while let Some(frame) = mailbox.take() {
+                let (depth, network_ran) = match predictor.predict_gated(&frame.image) {
+                    Ok(v) => v,
+                    Err(e) => {
+                        mailbox.failed(format!("{}: {e}", frame.name));
+                        continue;
+                    }
+                };
+                let contact_pixels =
+                    Predictor::contact_mask(&depth, CONTACT_THRESHOLD_MM).iter().filter(|&&c| c).count();
+                let cloud = if contact_pixels > 0 {
+                    predictor.point_cloud(&depth, CONTACT_THRESHOLD_MM)
+                } else {
+                    PointCloud::default()
+                };
+                let result =
+                    FrameResult { name: &frame.name, depth: &depth, contact_pixels, cloud: &cloud, network_ran };
+                for sink in sinks.iter_mut() {
+                    sink.frame(predictor, &result).map_err(StreamError::Sink)?;
+                }
+                records.push(FrameRecord {
+                    name: frame.name.clone(),
+                    arrived_s: frame.arrived.saturating_duration_since(started).as_secs_f64(),
+                    latency_ms: frame.arrived.elapsed().as_secs_f64() * 1e3,
+                    network_ran,
+                    contact_pixels,
+                    max_depth_mm: depth.max_mm(),
+                });
+                if limits.max_frames.is_some_and(|m| records.len() as u64 >= m) {
+                    stop.store(true, Ordering::Relaxed);
+                    break;
+                }
+                if limits.progress_every.is_some_and(|every| last_progress.elapsed() >= every) {
+                    last_progress = Instant::now();
+                    report.update(&records, &mailbox.counts(), started.elapsed());
+                    eprintln!("{}", report.progress_line());
+                }
+            }
+            Ok(())
+        })();
+        // The capture thread ends at its next look once stopped, also after a sink failed.
+        stop.store(true, Ordering::Relaxed);
+        mailbox.close();
+        result
+    })?;
+    let counts = mailbox.counts();
+    report.update(&records, &counts, started.elapsed());
+    report.frames = records;
+    if report.processed == 0
+        && let Some(first) = counts.problems.first()
+    {
+        return Err(StreamError::NothingUsable(first.clone()));
+    }
+    Ok(report)
+}
+
+/// The capture thread: frames from `source`, decoded and cropped, into the mailbox.
+fn capture(source: &mut dyn Source, predictor: &Predictor, mailbox: &Mailbox, stop: &AtomicBool) {
+    let mut channels_checked = false;
+    while let Some(delivered) = source.next(stop) {
+        match delivered {
+            Delivered::Skipped(names) => mailbox.skipped(names.len() as u64),
+            Delivered::Unreadable { name, message } => mailbox.unreadable(format!("{name}: {message}")),
+            Delivered::Frame { name, arrived, raw } => {
+                let path = std::path::Path::new(&name);
+                let image = match raw {
+                    RawFrame::Encoded(bytes) => sensor::frame::decode(path, &bytes),
+                    RawFrame::Rgb(image) => Ok(image),
+                }
+                .and_then(|image| sensor::frame::crop(path, image, &predictor.file.sensor))
+                .and_then(|crop| {
+                    // A source's channel order does not change: the first frame tells.
+                    if let (false, Some(reference)) = (channels_checked, &predictor.reference) {
+                        sensor::frame::check_channel_order(path, &crop, reference, &predictor.mask)?;
+                        channels_checked = true;
+                    }
+                    Ok(crop)
+                });
+                match image {
+                    Ok(image) => mailbox.put(Arrived { name, arrived, image }),
+                    Err(e) => mailbox.unreadable(e.to_string()),
+                }
+            }
+        }
+        if mailbox.is_closed() {
+            return;
+        }
+    }
+}

@@ -1,0 +1,69 @@
+//! Where a stream's results go.
+
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+
+use super::{FrameResult, StreamReport};
+use crate::Predictor;
+use crate::cloud::ply_bytes;
+
+/// Takes each frame's results; an error stops the stream.
+pub trait Sink {
+    fn frame(&mut self, predictor: &Predictor, result: &FrameResult) -> Result<(), String>;
+}
+
+/// Per frame: `depth/NAME.png` (16-bit, micrometres, as `predict --depth-out`) and, for a frame
+/// with contact, `cloud/NAME.ply` (contact patch, sensor frame, mm); at the end `stream.json`
+/// and `frames.csv`. Every file is written whole or not at all.
+pub struct FolderSink {
+    out: PathBuf,
+    /// Names used so far: frames of the same file name from two folders do not overwrite.
+    used: HashSet<String>,
+}
+
+impl FolderSink {
+    /// `out` must have been checked (`formats::output::check_dir`); it is created and marked.
+    pub fn new(out: &Path) -> Result<Self, formats::output::OutputError> {
+        for sub in ["depth", "cloud"] {
+            std::fs::create_dir_all(out.join(sub))
+                .map_err(|e| formats::output::OutputError { path: out.join(sub), why: e.to_string() })?;
+        }
+        formats::output::mark(out, formats::output::OutputKind::Stream)?;
+        Ok(FolderSink { out: out.to_path_buf(), used: HashSet::new() })
+    }
+
+    /// The output name of a frame: its file's stem, made unique within the stream.
+    fn name_for(&mut self, frame: &str) -> String {
+        let stem = Path::new(frame).file_stem().map_or_else(|| "frame".into(), |s| s.to_string_lossy().into_owned());
+        let mut name = stem.clone();
+        let mut k = 1;
+        while !self.used.insert(name.clone()) {
+            k += 1;
+            name = format!("{stem}-{k}");
+        }
+        name
+    }
+
+    /// Writes the summary and the per-frame records.
+    pub fn finish(&self, report: &StreamReport) -> Result<(), formats::FsError> {
+        let json = serde_json::to_vec_pretty(report).expect("report serialises");
+        let csv = report.frames_csv();
+        formats::fs::write_files_atomic(&[(&self.out.join("stream.json"), &json), (&self.out.join("frames.csv"), &csv)])
+    }
+}
+
+impl Sink for FolderSink {
+    fn frame(&mut self, _predictor: &Predictor, result: &FrameResult) -> Result<(), String> {
+        let name = self.name_for(result.name);
+        let write = |path: PathBuf, bytes: &[u8]| {
+            // Unsynced: a frame's files are replaced whole, and a sync each would cost more than
+            // the network at camera rate.
+            formats::fs::write_atomic_unsynced(&path, bytes).map_err(|e| e.to_string())
+        };
+        write(self.out.join("depth").join(format!("{name}.png")), &result.depth.to_png_um())?;
+        if result.contact_pixels > 0 {
+            write(self.out.join("cloud").join(format!("{name}.ply")), &ply_bytes(result.cloud))?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,197 @@
+//! `infer stream`: every frame once and in order, results equal to `predict`'s, stale frames
+//! dropped and counted on a live source, bad frames skipped by name, the CLI's files.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use common::{bundle, pressed};
+use dataset::Renderer;
+use infer::Predictor;
+use infer::stream::{FolderSink, FolderSource, GlobSource, Sink, StreamLimits, StreamReport};
+
+/// `n` frames named `f000.png`...: every third untouched (a noisy reference), the others pressed.
+fn frames(renderer: &Renderer, dir: &Path, n: usize) -> Vec<(PathBuf, image::RgbImage)> {
+    std::fs::create_dir_all(dir).unwrap();
+    let (_, pressed) = pressed(renderer);
+    let quiet = renderer.render(&vec![0.0; renderer.grid().len()], Some(4));
+    (0..n)
+        .map(|i| {
+            let path = dir.join(format!("f{i:03}.png"));
+            let img = if i % 3 == 0 { quiet.clone() } else { pressed.clone() };
+            std::fs::write(&path, sensor::frame::encode_png_rgb(&img)).unwrap();
+            (path, img)
+        })
+        .collect()
+}
+
+fn run(p: &Predictor, source: Box<dyn infer::stream::Source>, out: Option<&Path>) -> StreamReport {
+    let mut sink = out.map(|o| FolderSink::new(o).unwrap());
+    let mut sinks: Vec<&mut dyn Sink> = sink.iter_mut().map(|s| s as &mut dyn Sink).collect();
+    let report = infer::stream::run(p, source, &mut sinks, &StreamLimits::default(), &AtomicBool::new(false)).unwrap();
+    if let Some(sink) = &sink {
+        sink.finish(&report).unwrap();
+    }
+    report
+}
+
+fn names(report: &StreamReport) -> Vec<String> {
+    report.frames.iter().map(|r| r.name.clone()).collect()
+}
+
+/// A bundle in a temporary folder, its predictor, and `n` frames in `tmp/FOLDER`.
+fn setup(folder: &str, n: usize) -> (tempfile::TempDir, Predictor, Vec<(PathBuf, image::RgbImage)>) {
+    let tmp = tempfile::tempdir().unwrap();
+    let renderer = bundle(&tmp.path().join("bundle"));
+    let p = Predictor::load(&tmp.path().join("bundle"), &model::backend::default_device()).unwrap();
+    let frames = frames(&renderer, &tmp.path().join(folder), n);
+    (tmp, p, frames)
+}
+
+#[test]
+fn every_frame_of_a_glob_in_order_with_predicts_results() {
+    let (tmp, p, frames) = setup("in", 7);
+    let pattern = format!("{}/*.png", tmp.path().join("in").display());
+    let out = tmp.path().join("out");
+    let report = run(&p, Box::new(GlobSource::new(&pattern, None).unwrap()), Some(&out));
+
+    let expected: Vec<String> = frames.iter().map(|(path, _)| path.display().to_string()).collect();
+    assert_eq!(names(&report), expected);
+    assert_eq!((report.arrived, report.processed, report.dropped, report.unreadable), (7, 7, 0, 0));
+    // The gate answered the untouched frames (0, 3, 6) without the network.
+    assert_eq!(report.network_runs, 4);
+    assert_eq!(report.latency_ms.count, 7);
+    assert!(report.latency_ms.p50 > 0.0 && report.latency_ms.max >= report.latency_ms.p99);
+    for (i, (path, img)) in frames.iter().enumerate() {
+        let stem = path.file_stem().unwrap().to_str().unwrap();
+        let depth = p.predict(img).unwrap();
+        let written = std::fs::read(out.join("depth").join(format!("{stem}.png"))).unwrap();
+        assert_eq!(written, depth.to_png_um(), "{stem}: the stream's depth differs from predict's");
+        let record = &report.frames[i];
+        assert_eq!(record.network_ran, i % 3 != 0);
+        assert_eq!(record.max_depth_mm, depth.max_mm());
+        let cloud_path = out.join("cloud").join(format!("{stem}.ply"));
+        if record.contact_pixels > 0 {
+            let cloud = infer::cloud::read_ply(&cloud_path).unwrap();
+            assert_eq!(cloud, p.point_cloud(&depth, sensor::CONTACT_THRESHOLD_MM));
+        } else {
+            assert!(!cloud_path.exists(), "{stem}: no contact, no cloud");
+        }
+    }
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("stream.json")).unwrap()).unwrap();
+    assert_eq!(json["processed"], 7);
+    assert_eq!(json["delivery"], "every");
+    let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 8);
+}
+
+#[test]
+fn a_paced_glob_faster_than_the_network_drops_stale_frames_and_counts_them() {
+    let n = 40;
+    let (tmp, p, _) = setup("in", n);
+    let pattern = format!("{}/*.png", tmp.path().join("in").display());
+    // 5000 fps: a 570x570 PNG alone takes longer than 0.2 ms to decode.
+    let report = run(&p, Box::new(GlobSource::new(&pattern, Some(5000.0)).unwrap()), None);
+    assert_eq!(report.delivery, "live");
+    assert_eq!(report.arrived, n as u64);
+    assert_eq!(report.processed + report.dropped + report.unreadable, n as u64, "{}", report.summary());
+    assert!(report.dropped > 0, "nothing dropped at 5000 fps: {}", report.summary());
+    assert!(report.processed >= 1);
+    let got = names(&report);
+    assert!(got.windows(2).all(|w| w[0] < w[1]), "out of order or repeated: {got:?}");
+    // The last frame is never stale: nothing newer replaces it.
+    assert!(got.last().unwrap().ends_with(&format!("f{:03}.png", n - 1)), "{got:?}");
+}
+
+#[test]
+fn a_folder_is_read_as_frames_appear_each_once_whole_and_bad_ones_are_skipped_by_name() {
+    let (tmp, p, staged) = setup("staged", 6);
+    let watched = tmp.path().join("watched");
+    std::fs::create_dir_all(&watched).unwrap();
+    std::fs::copy(&staged[0].0, watched.join("a-before.png")).unwrap();
+    let (source, already) =
+        FolderSource::new(&watched, Duration::from_millis(2), Some(Duration::from_millis(1500))).unwrap();
+    assert_eq!(already, 1);
+
+    let report = std::thread::scope(|scope| {
+        scope.spawn(|| {
+            for (i, (path, _)) in staged.iter().enumerate() {
+                std::thread::sleep(Duration::from_millis(150));
+                let bytes = std::fs::read(path).unwrap();
+                let target = watched.join(format!("b{i}.png"));
+                if i == 2 {
+                    // Written in place in two halves: it must not be read half-written.
+                    std::fs::write(&target, &bytes[..bytes.len() / 2]).unwrap();
+                    std::thread::sleep(Duration::from_millis(100));
+                    std::fs::write(&target, &bytes).unwrap();
+                } else {
+                    formats::fs::write_atomic_unsynced(&target, &bytes).unwrap();
+                }
+                if i == 3 {
+                    // Whole by its markers but not an image; not a frame at all.
+                    let mut junk = b"\x89PNG\r\n\x1a\n".to_vec();
+                    junk.extend([7u8; 40]);
+                    junk.extend([0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xae, 0x42, 0x60, 0x82]);
+                    formats::fs::write_atomic_unsynced(&watched.join("b3x.png"), &junk).unwrap();
+                    std::fs::write(watched.join("notes.txt"), b"not a frame").unwrap();
+                }
+            }
+        });
+        run(&p, Box::new(source), None)
+    });
+    let got = names(&report);
+    let expected: Vec<String> = (0..6).map(|i| watched.join(format!("b{i}.png")).display().to_string()).collect();
+    // Frames come 150 ms apart, far slower than the tiny network: none is stale.
+    assert_eq!(got, expected, "{}", report.summary());
+    assert_eq!((report.unreadable, report.dropped), (1, 0), "{}", report.summary());
+    assert!(report.problems[0].contains("b3x.png"), "{:?}", report.problems);
+    // The half-written frame was read whole: it is a pressed frame, so the network ran.
+    assert!(report.frames[2].network_ran);
+    assert!(!report.frames[0].network_ran && !report.frames[3].network_ran);
+}
+
+fn infer(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_infer")).arg("stream").args(args).output().unwrap()
+}
+
+#[test]
+fn the_command_streams_a_glob_stops_at_max_frames_and_refuses_bad_sources() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bundle_dir = tmp.path().join("bundle");
+    let renderer = bundle(&bundle_dir);
+    let input = tmp.path().join("in");
+    frames(&renderer, &input, 5);
+    let b = bundle_dir.to_str().unwrap();
+    let out = tmp.path().join("out");
+    let pattern = format!("{}/*.png", input.display());
+    let o = infer(&["--bundle", b, "--source", &pattern, "--out", out.to_str().unwrap(), "--max-frames", "3"]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}{stdout}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.contains("p50") && stdout.contains("p99"), "{stdout}");
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("stream.json")).unwrap()).unwrap();
+    assert_eq!(json["processed"], 3);
+    assert_eq!(std::fs::read_dir(out.join("depth")).unwrap().count(), 3);
+
+    let refused = |args: &[&str], words: &[&str]| {
+        let o = infer(args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        for w in words {
+            assert!(err.contains(w), "{args:?}: {err}");
+        }
+    };
+    let missing = format!("{}/nothing-*.png", input.display());
+    refused(&["--bundle", b, "--source", &missing], &["no PNG or JPEG frame matches", "nothing-"]);
+    #[cfg(not(feature = "v4l2"))]
+    refused(&["--bundle", b, "--source", "/dev/video9"], &["/dev/video9", "--features v4l2"]);
+    // The output may not be the watched folder, nor a folder of another kind.
+    refused(&["--bundle", b, "--source", input.to_str().unwrap(), "--out", input.to_str().unwrap()], &["in"]);
+    refused(&["--bundle", b, "--source", &pattern, "--out", b], &["bundle"]);
+    // A source with no usable frame fails the run, naming the first problem.
+    let grey = tmp.path().join("grey.png");
+    image::GrayImage::new(570, 570).save(&grey).unwrap();
+    refused(&["--bundle", b, "--source", grey.to_str().unwrap()], &["grey.png", "greyscale"]);
+}
