@@ -56,6 +56,23 @@ pub struct BundleFile {
     /// none.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub weights_sha256: BTreeMap<String, String>,
+    /// Whose tensor names `weights.safetensors` uses (Burn's module paths unless exported with
+    /// `--torch-names`). Inference reads the burnpack file, which this does not touch.
+    #[serde(default)]
+    pub safetensors_keys: SafetensorsKeys,
+}
+
+/// The key names of a bundle's `weights.safetensors`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SafetensorsKeys {
+    /// This crate's module paths (`encoder.denseblock1.layers.0.norm1.gamma`), for Burn's
+    /// `SafetensorsStore`.
+    #[default]
+    Burn,
+    /// The reference DenseDepth's `state_dict` keys (`encoder.original_model.features...`),
+    /// for `load_state_dict(..., strict=True)` in PyTorch; see [`crate::torch`].
+    Pytorch,
 }
 
 /// SHA-256 of a file's bytes, in hex.
@@ -196,7 +213,13 @@ pub fn write_bundle(
         let bpk = tmp.join(WEIGHTS_BURNPACK);
         model.clone().save_file(&bpk).map_err(|e| err(&bpk, e))?;
         let st = tmp.join(WEIGHTS_SAFETENSORS);
-        model.save_into(&mut SafetensorsStore::from_file(&st)).map_err(|e| err(&st, e))?;
+        match file.safetensors_keys {
+            SafetensorsKeys::Burn => model.save_into(&mut SafetensorsStore::from_file(&st)).map_err(|e| err(&st, e))?,
+            SafetensorsKeys::Pytorch => {
+                let bytes = crate::torch::state_dict_safetensors(model).map_err(|e| err(&st, e))?;
+                std::fs::write(&st, bytes).map_err(|e| err(&st, e))?;
+            }
+        }
         for (name, path) in [(WEIGHTS_BURNPACK, &bpk), (WEIGHTS_SAFETENSORS, &st)] {
             let bytes = std::fs::read(path).map_err(|e| err(path, e))?;
             file.weights_sha256.insert(name.to_string(), sha256_hex(&bytes));
@@ -259,6 +282,7 @@ mod tests {
             reference_image: None,
             training: None,
             weights_sha256: BTreeMap::new(),
+            safetensors_keys: SafetensorsKeys::Burn,
         }
     }
 

@@ -1,4 +1,4 @@
-//! PyTorch weight import: a DenseDepth `state_dict`, or a torchvision DenseNet checkpoint for
+//! PyTorch weight import: a DenseDepth `state_dict` (pickled or safetensors), or a torchvision DenseNet checkpoint for
 //! the encoder alone (what a user downloads to start from ImageNet, as the paper did).
 //!
 //! Both key styles are read: `denselayer1.norm1.weight` and the legacy `denselayer1.norm.1.weight`
@@ -8,9 +8,10 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use burn::store::{ApplyError, ModuleStore, PytorchStore};
+use burn::store::{ApplyError, ApplyResult, ModuleStore, PyTorchToBurnAdapter, PytorchStore, SafetensorsStore};
 use burn::tensor::Device;
 
+use crate::InputChannels;
 use crate::network::{DenseDepth, DenseDepthConfig, DenseNetConfig};
 
 #[derive(Debug, thiserror::Error)]
@@ -49,8 +50,54 @@ const KEY_RULES: [(&str, &str); 6] = [
     (r"\.convB\.", ".conv_b."),
 ];
 
-fn open_store(path: &Path) -> PytorchStore {
-    KEY_RULES.iter().fold(PytorchStore::from_file(path), |store, (from, to)| store.with_key_remapping(from, *to))
+/// A PyTorch `state_dict` on disk: pickled (`torch.save`) or safetensors
+/// (`safetensors.torch.save_file`, or `train export --torch-names`), told apart by content.
+enum Store {
+    Pickle(PytorchStore),
+    Safetensors(SafetensorsStore),
+}
+
+impl Store {
+    /// `allow_partial` and no validation: what fits is applied, the rest reported.
+    fn open(path: &Path, lenient: bool) -> Store {
+        if is_safetensors(path) {
+            let store = SafetensorsStore::from_file(path)
+                .with_from_adapter(PyTorchToBurnAdapter)
+                .skip_enum_variants(true)
+                .map_indices_contiguous(true);
+            let store = KEY_RULES.iter().fold(store, |store, (from, to)| store.with_key_remapping(from, *to));
+            Store::Safetensors(if lenient { store.allow_partial(true).validate(false) } else { store })
+        } else {
+            let store = KEY_RULES
+                .iter()
+                .fold(PytorchStore::from_file(path), |store, (from, to)| store.with_key_remapping(from, *to));
+            Store::Pickle(if lenient { store.allow_partial(true).validate(false) } else { store })
+        }
+    }
+
+    fn shapes(&mut self) -> Result<BTreeMap<String, Vec<usize>>, String> {
+        let shapes = |all: &BTreeMap<String, burn::store::burn_pack::Tensor>| {
+            all.iter().map(|(k, t)| (k.clone(), t.shape.to_vec())).collect()
+        };
+        match self {
+            Store::Pickle(s) => s.get_all_tensors().map(shapes).map_err(|e| e.to_string()),
+            Store::Safetensors(s) => s.get_all_tensors().map(shapes).map_err(|e| e.to_string()),
+        }
+    }
+
+    fn apply_to(&mut self, model: &mut DenseDepth) -> Result<ApplyResult, String> {
+        match self {
+            Store::Pickle(s) => s.apply_to(model).map_err(|e| e.to_string()),
+            Store::Safetensors(s) => s.apply_to(model).map_err(|e| e.to_string()),
+        }
+    }
+}
+
+/// Whether the file starts like safetensors: an 8-byte little-endian header length, then `{`.
+fn is_safetensors(path: &Path) -> bool {
+    use std::io::Read;
+    let mut head = [0u8; 9];
+    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut head)).is_ok() && head[8] == b'{'
 }
 
 /// A module path in PyTorch's words, for messages: `encoder.denseblock2.layers.1.norm1.gamma`
@@ -94,9 +141,17 @@ fn read_config(path: &Path, shapes: &BTreeMap<String, Vec<usize>>) -> Result<(De
     let not = |message: String| ImportError::NotDenseNet { path: path.into(), message };
     let shape = |key: &str| shapes.get(key).ok_or_else(|| not(format!("no tensor {}", torch_name(key))));
     let stem = shape("encoder.conv0.weight")?;
-    if stem.len() != 4 || stem[1] != 3 || stem[2] != 7 || stem[3] != 7 {
-        return Err(not(format!("encoder.conv0.weight has shape {stem:?}, expected [C, 3, 7, 7]")));
-    }
+    // Three input channels is the reference model; six is ours reading the reference difference.
+    let input =
+        [InputChannels::Rgb, InputChannels::RgbDifference].into_iter().find(|i| stem.get(1) == Some(&i.count()));
+    let input = match (stem.len(), input, stem.get(2), stem.get(3)) {
+        (4, Some(input), Some(7), Some(7)) => input,
+        _ => {
+            return Err(not(format!(
+                "encoder.conv0.weight has shape {stem:?}, expected [C, 3, 7, 7] (or [C, 6, 7, 7])"
+            )));
+        }
+    };
     let growth_shape = shape("encoder.denseblock1.layers.0.conv2.weight")?;
     let bottleneck_shape = shape("encoder.denseblock1.layers.0.conv1.weight")?;
     let growth = growth_shape[0];
@@ -114,7 +169,9 @@ fn read_config(path: &Path, shapes: &BTreeMap<String, Vec<usize>>) -> Result<(De
     }
     let encoder = DenseNetConfig::new(growth, blocks, stem[0], bottleneck_shape[0] / growth);
     let (_, bottleneck) = encoder.skip_channels();
-    let mut config = DenseDepthConfig::new(encoder);
+    let mut config = DenseDepthConfig::new(encoder)
+        .with_input(input)
+        .with_full_resolution(shapes.contains_key("decoder.up5.conv_a.weight"));
     let encoder_only = !shapes.contains_key("decoder.conv2.weight");
     if !encoder_only {
         let width = shape("decoder.conv2.weight")?[0];
@@ -134,17 +191,14 @@ fn read_config(path: &Path, shapes: &BTreeMap<String, Vec<usize>>) -> Result<(De
 /// must find its place (apart from the classifier and BatchNorm counters) and every parameter of
 /// the model must be filled (apart from the decoder, for an encoder-only checkpoint).
 pub fn load_pytorch(path: &Path, device: &Device) -> Result<Imported, ImportError> {
-    let mut store = open_store(path);
     let read = |e: &dyn std::fmt::Display| ImportError::Read { path: path.into(), message: e.to_string() };
     if !path.is_file() {
         return Err(read(&"no such file"));
     }
-    let shapes: BTreeMap<String, Vec<usize>> =
-        store.get_all_tensors().map_err(|e| read(&e))?.iter().map(|(k, t)| (k.clone(), t.shape.to_vec())).collect();
+    let shapes = Store::open(path, false).shapes().map_err(|e| read(&e))?;
     let (config, encoder_only) = read_config(path, &shapes)?;
     let mut model = config.init(device);
-    let mut store = open_store(path).allow_partial(true).validate(false);
-    let result = store.apply_to(&mut model).map_err(|e| read(&e))?;
+    let result = Store::open(path, true).apply_to(&mut model).map_err(|e| read(&e))?;
 
     let problems: Vec<String> = result
         .errors

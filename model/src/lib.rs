@@ -6,7 +6,7 @@
 //! - `kernels`: the flex CPU kernels (matrix-product convolutions, fused dense blocks, batch
 //!   norms, pooling, upsampling), through one small interface; private to this crate;
 //! - `input`: crops to the network's input (RGB, optionally the reference difference);
-//! - `bundle`, `import`, `tensor_file`: files in and out;
+//! - `bundle`, `import`, `torch`, `tensor_file`: files in and out (PyTorch's names both ways);
 //! - `loss`, `scale`: the training loss and the mm <-> network depth scale;
 //! - `backend`: devices by name.
 
@@ -21,6 +21,7 @@ pub mod loss;
 mod network;
 pub mod scale;
 pub mod tensor_file;
+pub mod torch;
 
 pub use input::{InputChannels, InputEncoder};
 pub use loss::{DepthLoss, DepthLossConfig};

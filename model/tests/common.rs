@@ -1,6 +1,6 @@
 //! Helpers shared by the model's tests.
 
-#![allow(dead_code)]
+#![allow(dead_code, unused_imports)]
 
 use std::path::PathBuf;
 

@@ -6,7 +6,7 @@ use anyhow::{Context, Result};
 use burn::module::Module;
 use formats::dataset::Split;
 use formats::training::{Imported, TestError, Trained, TrainingRecord};
-use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, write_bundle};
+use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, SafetensorsKeys, write_bundle};
 use model::{DenseDepth, DepthScale};
 use sensor::Sensor;
 
@@ -15,13 +15,14 @@ use crate::data::DepthDataset;
 
 /// Writes the bundle of a run: its best epoch on the held-out validation samples if it keeps
 /// one, else its latest checkpoint.
-pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device) -> Result<()> {
+/// `keys` names the tensors of `weights.safetensors` (PyTorch's with `--torch-names`).
+pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device, keys: SafetensorsKeys) -> Result<()> {
     let latest =
         checkpoint::latest(run).with_context(|| format!("{}: no checkpoint in this run folder", run.display()))?;
     let state = checkpoint::read_state(&latest)?;
     let weights = checkpoint::best(run).unwrap_or(latest);
     let net = checkpoint::restore_model(&weights, &state.model, device)?;
-    export_net(&net, &state, out, &[run])
+    export_net_with(&net, &state, out, &[run], keys)
 }
 
 /// Writes the bundle of a trained network and its run's state (never over the dataset, nor
@@ -31,6 +32,21 @@ pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device) -> Resu
 /// split is empty or an image of it cannot be read (`--on-bad-data skip`), it records why there
 /// is no test error instead of a figure over part of it.
 pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path, inputs: &[&Path]) -> Result<()> {
+    export_net_with(net, state, out, inputs, SafetensorsKeys::Burn)
+}
+
+/// [`export_net`] with the key names of `weights.safetensors` chosen; PyTorch's names on a
+/// model whose architecture differs from the reference DenseDepth's say what differs.
+pub fn export_net_with(
+    net: &DenseDepth,
+    state: &RunState,
+    out: &Path,
+    inputs: &[&Path],
+    keys: SafetensorsKeys,
+) -> Result<()> {
+    if keys == SafetensorsKeys::Pytorch {
+        warn_differences(&state.model);
+    }
     // The test error is the bundle's unit's (`data`); other units' folders are inputs too.
     let folders = state.config.folders();
     let mut all_inputs: Vec<&Path> = folders.iter().map(|p| p.as_path()).collect();
@@ -75,6 +91,7 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path, inputs: &[&Pat
         sensor: test.sensor.clone(),
         reference_image: None,
         weights_sha256: Default::default(),
+        safetensors_keys: keys,
         training: Some(TrainingRecord::Trained(Trained {
             data: state.config.data.clone(),
             epochs: state.epoch,
@@ -95,13 +112,15 @@ pub fn export_net(net: &DenseDepth, state: &RunState, out: &Path, inputs: &[&Pat
     Ok(())
 }
 
-/// A bundle from a PyTorch DenseDepth `state_dict` and a sensor description.
+/// A bundle from a PyTorch DenseDepth `state_dict` (pickled or safetensors) and a sensor
+/// description; `keys` names the tensors of its `weights.safetensors`.
 pub fn import_pth(
     pth: &Path,
     sensor: &Path,
     input_hw: [usize; 2],
     out: &Path,
     device: &burn::tensor::Device,
+    keys: SafetensorsKeys,
 ) -> Result<()> {
     let sensor_path = sensor;
     let sensor = Sensor::load_json(sensor)?;
@@ -121,7 +140,16 @@ pub fn import_pth(
         reference_image: None,
         training: Some(TrainingRecord::Imported(Imported { imported_from: pth.to_path_buf() })),
         weights_sha256: Default::default(),
+        safetensors_keys: keys,
     };
     write_bundle(out, &net, &file, None, &[pth, sensor_path])?;
     Ok(())
+}
+
+/// Tells on stderr what a PyTorch user must change in the reference DenseDepth before the
+/// exported `state_dict` loads into it (nothing for the reference architecture).
+fn warn_differences(model: &model::DenseDepthConfig) {
+    for d in model::torch::differences_from_reference(model) {
+        eprintln!("note: weights.safetensors has PyTorch's names, but {d}");
+    }
 }

@@ -27,8 +27,13 @@ enum Command {
         run: PathBuf,
         #[arg(long)]
         out: PathBuf,
+        /// Name weights.safetensors' tensors as the reference PyTorch DenseDepth's state_dict
+        /// (`load_state_dict(load_file(...), strict=True)` loads it); default: Burn's paths.
+        #[arg(long)]
+        torch_names: bool,
     },
-    /// Make a bundle from a PyTorch DenseDepth state_dict.
+    /// Make a bundle from a PyTorch DenseDepth state_dict: a `torch.save` file or safetensors
+    /// (`safetensors.torch.save_file`, or a bundle's weights.safetensors with PyTorch's names).
     Import {
         #[arg(long)]
         pth: PathBuf,
@@ -38,7 +43,15 @@ enum Command {
         input: [usize; 2],
         #[arg(long)]
         out: PathBuf,
+        /// Name weights.safetensors' tensors as the reference PyTorch model's state_dict.
+        #[arg(long)]
+        torch_names: bool,
     },
+}
+
+/// The key names `--torch-names` asks for.
+fn keys(torch_names: bool) -> model::bundle::SafetensorsKeys {
+    if torch_names { model::bundle::SafetensorsKeys::Pytorch } else { model::bundle::SafetensorsKeys::Burn }
 }
 
 #[derive(clap::Args)]
@@ -309,10 +322,12 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Fit(args) => run_fit(args),
         Command::Finetune(args) => run_finetune(args),
-        Command::Export { run, out } => train::export::export_run(&run, &out, &model::backend::default_device())
-            .map(|()| println!("wrote bundle {}", out.display())),
-        Command::Import { pth, sensor, input, out } => {
-            train::export::import_pth(&pth, &sensor, input, &out, &model::backend::default_device())
+        Command::Export { run, out, torch_names } => {
+            train::export::export_run(&run, &out, &model::backend::default_device(), keys(torch_names))
+                .map(|()| println!("wrote bundle {}", out.display()))
+        }
+        Command::Import { pth, sensor, input, out, torch_names } => {
+            train::export::import_pth(&pth, &sensor, input, &out, &model::backend::default_device(), keys(torch_names))
                 .with_context(|| format!("importing {}", pth.display()))
                 .map(|()| println!("wrote bundle {}", out.display()))
         }

@@ -1,4 +1,5 @@
-"""Peer for `cargo xtask bench model`: the same DenseDepth architecture in PyTorch, on the CPU or
+"""Peer for `cargo xtask bench model`: the same DenseDepth architecture in PyTorch (the reference
+model, `densedepth_reference.py`), on the CPU or
 (--device cuda) the first CUDA GPU. Not part of CI. Needs: pip install torch torchvision.
 
 Prints one line per batch size: batch=B forward_ms=X train_ms=Y device=D (medians; the train step is
@@ -6,7 +7,7 @@ forward, the DenseDepth loss, backward and an Adam step, as in the Burn benchmar
 """
 import argparse, statistics, time
 import torch, torch.nn as nn, torch.nn.functional as F
-from torchvision.models.densenet import DenseNet
+from densedepth_reference import Model
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--growth", type=int); ap.add_argument("--blocks"); ap.add_argument("--init", type=int)
@@ -20,33 +21,6 @@ dev = torch.device(a.device if a.device == "cpu" or torch.cuda.is_available() el
 torch.backends.cudnn.benchmark = True
 torch.set_num_threads(a.threads)
 blocks = tuple(int(x) for x in a.blocks.split(","))
-
-class Up(nn.Module):
-    def __init__(s, i, o):
-        super().__init__(); s.convA = nn.Conv2d(i, o, 3, 1, 1); s.convB = nn.Conv2d(o, o, 3, 1, 1)
-    def forward(s, x, skip):
-        x = F.interpolate(x, size=skip.shape[2:], mode="bilinear", align_corners=True)
-        return F.leaky_relu(s.convB(F.leaky_relu(s.convA(torch.cat([x, skip], 1)), 0.2)), 0.2)
-
-class Model(nn.Module):
-    def __init__(s):
-        super().__init__()
-        s.enc = DenseNet(growth_rate=a.growth, block_config=blocks, num_init_features=a.init, bn_size=a.bn_size).features
-        c = a.init; skips = [c, c]
-        for i, n in enumerate(blocks):
-            c += n * a.growth
-            if i < 3: c //= 2; skips.append(c)
-        n = c // 2
-        s.conv2 = nn.Conv2d(c, n, 1)
-        s.up1 = Up(n + skips[3], n // 2); s.up2 = Up(n // 2 + skips[2], n // 4)
-        s.up3 = Up(n // 4 + skips[1], n // 8); s.up4 = Up(n // 8 + skips[0], n // 16)
-        s.conv3 = nn.Conv2d(n // 16, 1, 3, 1, 1)
-    def forward(s, x):
-        f = [x]
-        for m in s.enc: f.append(m(f[-1]))
-        x = s.conv2(F.relu(f[12]))
-        x = s.up1(x, f[8]); x = s.up2(x, f[6]); x = s.up3(x, f[4]); x = s.up4(x, f[3])
-        return s.conv3(x)
 
 def gauss(ws=11, sigma=1.5):
     t = torch.arange(ws, dtype=torch.float32) - ws // 2
@@ -75,7 +49,7 @@ def timed(f, reps):
     return statistics.median(ts)
 
 for b in (int(x) for x in a.batches.split(",")):
-    m = Model().to(dev)
+    m = Model(a.growth, blocks, a.init, a.bn_size).to(dev)
     x = torch.rand(b, 3, a.height, a.width, device=dev)
     m.eval()
     with torch.no_grad():

@@ -21,6 +21,7 @@ pub fn bundle_file(model: DenseDepthConfig, unit: &SensorUnit) -> BundleFile {
         reference_image: None,
         training: None,
         weights_sha256: Default::default(),
+        safetensors_keys: Default::default(),
     }
 }
 

@@ -1,0 +1,99 @@
+//! Weights out to PyTorch: a `state_dict` under the reference DenseDepth model's key names
+//! (`encoder.original_model.features...`, `decoder.up1.convA...`), as safetensors, so that
+//!
+//! ```python
+//! from safetensors.torch import load_file
+//! model.load_state_dict(load_file("weights.safetensors"), strict=True)
+//! ```
+//!
+//! loads it into the reference model. [`crate::import::load_pytorch`] reads such a file back.
+
+use std::collections::HashMap;
+
+use burn::store::ModuleSnapshot;
+
+use crate::InputChannels;
+use crate::import::torch_name;
+use crate::network::{DenseDepth, DenseDepthConfig};
+
+/// The reference DenseDepth's key for one of this crate's module paths:
+/// `encoder.denseblock1.layers.0.norm1.gamma` -> `encoder.original_model.features.denseblock1.denselayer1.norm1.weight`,
+/// `decoder.up1.conv_a.weight` -> `decoder.up1.convA.weight`.
+pub fn densedepth_key(path: &str) -> String {
+    let name = torch_name(path);
+    if name.starts_with("features.") { format!("encoder.original_model.{name}") } else { name }
+}
+
+/// How `config` differs from the reference DenseDepth's architecture, for people: each entry
+/// is what a PyTorch user must change in the reference model before loading. Empty: it loads
+/// as it is.
+pub fn differences_from_reference(config: &DenseDepthConfig) -> Vec<String> {
+    let mut out = Vec::new();
+    if config.input != InputChannels::Rgb {
+        out.push(format!(
+            "the network reads {} channels ({}): conv0 takes {} input channels, not 3",
+            config.input.count(),
+            config.input.name(),
+            config.input.count()
+        ));
+    }
+    if config.full_resolution {
+        out.push(
+            "the output is at the input's resolution: a fifth up block (decoder.up5, skip = the input) before conv3"
+                .to_string(),
+        );
+    }
+    out
+}
+
+/// The classes of torchvision's DenseNet classifier (ImageNet's), which the reference model keeps.
+const CLASSES: usize = 1000;
+const CLASSIFIER_WEIGHT: &str = "encoder.original_model.classifier.weight";
+const CLASSIFIER_BIAS: &str = "encoder.original_model.classifier.bias";
+
+/// The model's weights as a safetensors `state_dict` under the reference model's names, with
+/// what PyTorch's own `state_dict` has beside them: each BatchNorm's `num_batches_tracked` (0,
+/// int64) and the encoder's unused ImageNet classifier (zeros).
+pub fn state_dict_safetensors(model: &DenseDepth) -> Result<Vec<u8>, String> {
+    let mut tensors: Vec<(String, safetensors::Dtype, Vec<usize>, Vec<u8>)> = Vec::new();
+    for t in model.collect(None, None, true) {
+        let path = t.name.clone();
+        let data = burn::store::bridge::into_data(t).map_err(|e| format!("{path}: {e}"))?;
+        let shape = data.shape().to_vec();
+        let values = data.convert::<f32>().try_into_vec::<f32>().map_err(|e| format!("{path}: {e:?}"))?;
+        let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let key = densedepth_key(&path);
+        if let Some(norm) = key.strip_suffix(".running_var") {
+            tensors.push((
+                format!("{norm}.num_batches_tracked"),
+                safetensors::Dtype::I64,
+                vec![],
+                0i64.to_le_bytes().to_vec(),
+            ));
+        }
+        if key == "encoder.original_model.features.norm5.running_var" {
+            // torchvision's DenseNet carries an ImageNet classifier that DenseDepth never runs
+            // but whose keys a strict load asks for: zeros of its shape.
+            let features = shape[0];
+            let zeros = |n: usize| vec![0u8; 4 * n];
+            tensors.push((
+                CLASSIFIER_WEIGHT.into(),
+                safetensors::Dtype::F32,
+                vec![CLASSES, features],
+                zeros(CLASSES * features),
+            ));
+            tensors.push((CLASSIFIER_BIAS.into(), safetensors::Dtype::F32, vec![CLASSES], zeros(CLASSES)));
+        }
+        tensors.push((key, safetensors::Dtype::F32, shape, bytes));
+    }
+    let views = tensors
+        .iter()
+        .map(|(k, dtype, shape, bytes)| {
+            safetensors::tensor::TensorView::new(*dtype, shape.clone(), bytes).map(|v| (k.clone(), v))
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| e.to_string())?;
+    // `format: pt` is what `safetensors.torch.save_file` writes.
+    let metadata = HashMap::from([("format".to_string(), "pt".to_string())]);
+    safetensors::serialize(views, Some(metadata)).map_err(|e| e.to_string())
+}
