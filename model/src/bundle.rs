@@ -119,6 +119,24 @@ fn err(path: &Path, message: impl std::fmt::Display) -> BundleError {
 }
 
 impl BundleFile {
+    /// The description of `model` reading `[h, w]` inputs for `sensor`: no reference image, no
+    /// training record, Burn's tensor names (set the rest with struct update syntax).
+    pub fn new(model: DenseDepthConfig, [h, w]: [usize; 2], sensor: Sensor, depth_scale: DepthScale) -> Self {
+        BundleFile {
+            format_version: BUNDLE_FORMAT_VERSION,
+            input_encoding: model.input.encoding().into(),
+            model,
+            input_height_px: h,
+            input_width_px: w,
+            depth_scale,
+            sensor,
+            reference_image: None,
+            training: None,
+            weights_sha256: BTreeMap::new(),
+            safetensors_keys: SafetensorsKeys::Burn,
+        }
+    }
+
     /// Reads and checks `DIR/bundle.json`.
     pub fn read(dir: &Path) -> Result<Self, BundleError> {
         let path = dir.join(BUNDLE_JSON);
@@ -271,19 +289,12 @@ mod tests {
     use burn::tensor::{Distribution, Tensor};
 
     fn bundle_file() -> BundleFile {
-        BundleFile {
-            format_version: BUNDLE_FORMAT_VERSION,
-            model: DenseDepthConfig::new(DenseNetConfig::tiny()),
-            input_height_px: 64,
-            input_width_px: 64,
-            input_encoding: InputChannels::Rgb.encoding().into(),
-            depth_scale: DepthScale::paper(9.4),
-            sensor: Sensor::default(),
-            reference_image: None,
-            training: None,
-            weights_sha256: BTreeMap::new(),
-            safetensors_keys: SafetensorsKeys::Burn,
-        }
+        BundleFile::new(
+            DenseDepthConfig::new(DenseNetConfig::tiny()),
+            [64, 64],
+            Sensor::default(),
+            DepthScale::paper(9.4),
+        )
     }
 
     #[test]

@@ -6,7 +6,8 @@
 //! - `kernels`: the flex CPU kernels (matrix-product convolutions, fused dense blocks, batch
 //!   norms, pooling, upsampling), through one small interface; private to this crate;
 //! - `input`: crops to the network's input (RGB, optionally the reference difference);
-//! - `bundle`, `import`, `torch`, `tensor_file`: files in and out (PyTorch's names both ways);
+//! - `bundle`, `import`, `torch`, `onnx`, `tensor_file`: files in and out (PyTorch's names both
+//!   ways, ONNX out);
 //! - `loss`, `scale`: the training loss and the mm <-> network depth scale;
 //! - `backend`: devices by name.
 
@@ -19,6 +20,7 @@ pub mod input;
 mod kernels;
 pub mod loss;
 mod network;
+pub mod onnx;
 pub mod scale;
 pub mod tensor_file;
 pub mod torch;

@@ -105,26 +105,15 @@ fn the_reference_state_dict_comes_back_key_for_key_and_bit_for_bit() {
 
 #[test]
 fn a_bundle_exported_with_torch_names_says_so_and_still_loads() {
-    use model::bundle::{
-        BUNDLE_FORMAT_VERSION, BundleFile, SafetensorsKeys, WEIGHTS_SAFETENSORS, load_bundle, write_bundle,
-    };
+    use model::bundle::{BundleFile, SafetensorsKeys, WEIGHTS_SAFETENSORS, load_bundle, write_bundle};
     let tmp = tempfile::tempdir().unwrap();
     let device = model::backend::default_device();
     device.seed(2);
     let config = DenseDepthConfig::new(DenseNetConfig::tiny());
     let net = config.init(&device);
     let file = BundleFile {
-        format_version: BUNDLE_FORMAT_VERSION,
-        model: config.clone(),
-        input_height_px: 64,
-        input_width_px: 64,
-        input_encoding: InputChannels::Rgb.encoding().into(),
-        depth_scale: model::DepthScale::paper(9.4),
-        sensor: sensor::Sensor::default(),
-        reference_image: None,
-        training: None,
-        weights_sha256: Default::default(),
         safetensors_keys: SafetensorsKeys::Pytorch,
+        ..BundleFile::new(config.clone(), [64, 64], sensor::Sensor::default(), model::DepthScale::paper(9.4))
     };
     let dir = tmp.path().join("bundle");
     write_bundle(&dir, &net, &file, None, &[]).unwrap();

@@ -6,7 +6,7 @@ use anyhow::{Context, Result};
 use burn::module::Module;
 use formats::dataset::Split;
 use formats::training::{Imported, TestError, Trained, TrainingRecord};
-use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, SafetensorsKeys, write_bundle};
+use model::bundle::{BundleFile, SafetensorsKeys, write_bundle};
 use model::{DenseDepth, DepthScale};
 use sensor::Sensor;
 
@@ -82,15 +82,6 @@ pub fn export_net_with(
         }
     };
     let file = BundleFile {
-        format_version: BUNDLE_FORMAT_VERSION,
-        model: state.model.clone(),
-        input_height_px: state.config.input_hw[0],
-        input_width_px: state.config.input_hw[1],
-        input_encoding: state.model.input.encoding().into(),
-        depth_scale: test.scale,
-        sensor: test.sensor.clone(),
-        reference_image: None,
-        weights_sha256: Default::default(),
         safetensors_keys: keys,
         training: Some(TrainingRecord::Trained(Trained {
             data: state.config.data.clone(),
@@ -107,6 +98,7 @@ pub fn export_net_with(
             test_l1_mm: None,
             selected_epoch: state.selected().map_or(state.epoch, |m| m.epoch),
         })),
+        ..BundleFile::new(state.model.clone(), state.config.input_hw, test.sensor.clone(), test.scale)
     };
     write_bundle(out, net, &file, test.reference_png().as_deref(), &all_inputs)?;
     Ok(())
@@ -129,18 +121,11 @@ pub fn import_pth(
         anyhow::bail!("{}: holds a DenseNet encoder only; a bundle needs a whole DenseDepth", pth.display());
     }
     let net = imported.model;
+    let scale = DepthScale::paper(sensor.max_depth_mm as f32);
     let file = BundleFile {
-        format_version: BUNDLE_FORMAT_VERSION,
-        model: imported.config,
-        input_height_px: input_hw[0],
-        input_width_px: input_hw[1],
-        input_encoding: model::InputChannels::Rgb.encoding().into(),
-        depth_scale: DepthScale::paper(sensor.max_depth_mm as f32),
-        sensor,
-        reference_image: None,
         training: Some(TrainingRecord::Imported(Imported { imported_from: pth.to_path_buf() })),
-        weights_sha256: Default::default(),
         safetensors_keys: keys,
+        ..BundleFile::new(imported.config, input_hw, sensor, scale)
     };
     write_bundle(out, &net, &file, None, &[pth, sensor_path])?;
     Ok(())
@@ -152,4 +137,15 @@ fn warn_differences(model: &model::DenseDepthConfig) {
     for d in model::torch::differences_from_reference(model) {
         eprintln!("note: weights.safetensors has PyTorch's names, but {d}");
     }
+}
+
+/// Writes `bundle`'s network as ONNX to `out` (never over one of the bundle's files); returns
+/// its size in bytes.
+pub fn export_onnx(bundle: &Path, out: &Path, device: &burn::tensor::Device) -> Result<usize> {
+    let inputs = [bundle.join(model::bundle::BUNDLE_JSON), bundle.join(model::bundle::WEIGHTS_BURNPACK)];
+    formats::output::check_file(out, &inputs.iter().map(|p| p.as_path()).collect::<Vec<_>>())?;
+    let (net, file) = model::bundle::load_bundle(bundle, device)?;
+    let bytes = model::onnx::export(&net, &file).with_context(|| format!("{}", bundle.display()))?;
+    formats::fs::write_atomic(out, &bytes)?;
+    Ok(bytes.len())
 }

@@ -32,6 +32,15 @@ enum Command {
         #[arg(long)]
         torch_names: bool,
     },
+    /// A bundle's network as an ONNX model (opset 17, weights embedded, batch, height and
+    /// width free; input encoding, depth scale, model and sensor in its metadata).
+    Onnx {
+        #[arg(long)]
+        bundle: PathBuf,
+        /// The .onnx file to write.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Make a bundle from a PyTorch DenseDepth state_dict: a `torch.save` file or safetensors
     /// (`safetensors.torch.save_file`, or a bundle's weights.safetensors with PyTorch's names).
     Import {
@@ -326,6 +335,8 @@ fn main() -> ExitCode {
             train::export::export_run(&run, &out, &model::backend::default_device(), keys(torch_names))
                 .map(|()| println!("wrote bundle {}", out.display()))
         }
+        Command::Onnx { bundle, out } => train::export::export_onnx(&bundle, &out, &model::backend::default_device())
+            .map(|bytes| println!("wrote {} ({:.1} MB)", out.display(), bytes as f64 / 1e6)),
         Command::Import { pth, sensor, input, out, torch_names } => {
             train::export::import_pth(&pth, &sensor, input, &out, &model::backend::default_device(), keys(torch_names))
                 .with_context(|| format!("importing {}", pth.display()))

@@ -1,6 +1,7 @@
 //! Model benchmark: median forward and train-step milliseconds, batch 1 and 4, beside PyTorch
 //! running the same architecture in the same run: on the CPU (flex) with the same thread count,
-//! or on a GPU (`--devices cuda`, or several for the data-parallel train step).
+//! or on a GPU (`--devices cuda`, or several for the data-parallel train step). On the CPU,
+//! ONNX Runtime runs the same network exported by `model::onnx` (forward only).
 
 use std::process::Command;
 
@@ -28,7 +29,8 @@ pub struct Args {
     /// Timed repetitions per measurement (after one warm-up); the median is reported.
     #[arg(long, default_value_t = 3)]
     reps: usize,
-    /// Python interpreter with torch and torchvision for the peer; "none" skips it.
+    /// Python interpreter with torch and torchvision (and onnxruntime, on the CPU) for the
+    /// peers; "none" skips them.
     #[arg(long, default_value = "python3")]
     python: String,
     /// Measure the forward pass only (for profiling).
@@ -123,56 +125,92 @@ pub fn run(args: Args) -> Result<()> {
 
     let mut peer = Vec::new();
     let mut peer_device = String::from("cpu");
+    let mut ort = Vec::new();
     if args.python != "none" {
-        let script = concat!(env!("CARGO_MANIFEST_DIR"), "/peers/densedepth_torch.py");
         let [g, i, bn] = [encoder.growth_rate, encoder.num_init_features, encoder.bn_size];
         let blocks = encoder.block_config.map(|x| x.to_string()).join(",");
         let batches = args.batches.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(",");
-        let out = Command::new(&args.python)
-            .args([
-                script,
-                "--growth",
-                &g.to_string(),
-                "--blocks",
-                &blocks,
-                "--init",
-                &i.to_string(),
-                "--bn-size",
-                &bn.to_string(),
-            ])
-            .args(["--height", &h.to_string(), "--width", &w.to_string(), "--batches", &batches])
-            .args(["--reps", &args.reps.to_string(), "--threads", &threads.to_string()])
-            .args(["--device", if on_cpu { "cpu" } else { "cuda" }])
-            .output()
-            .with_context(|| format!("running {} {script}", args.python))?;
-        if !out.status.success() {
-            bail!("peer failed: {}", String::from_utf8_lossy(&out.stderr));
-        }
-        for line in String::from_utf8_lossy(&out.stdout).lines() {
-            let field = |key: &str| {
-                line.split_whitespace().find_map(|w| w.strip_prefix(key)).and_then(|v| v.parse::<f64>().ok())
-            };
-            if let (Some(batch), Some(f), Some(t)) = (field("batch="), field("forward_ms="), field("train_ms=")) {
+        let [hs, ws, reps, threads, g, i, bn] = [h, w, args.reps, threads, g, i, bn].map(|v| v.to_string());
+        let common = ["--height", &hs, "--width", &ws, "--batches", &batches, "--reps", &reps, "--threads", &threads];
+        let device_name = if on_cpu { "cpu" } else { "cuda" };
+        let mut torch_args = vec!["--growth", &g, "--blocks", &blocks, "--init", &i, "--bn-size", &bn];
+        torch_args.extend(["--device", device_name]);
+        torch_args.extend(common);
+        let lines = run_peer(&args.python, "densedepth_torch.py", &torch_args)?;
+        for line in &lines {
+            if let (Some(batch), Some(f), Some(t)) =
+                (field(line, "batch="), field(line, "forward_ms="), field(line, "train_ms="))
+            {
                 peer.push((batch as usize, f, t));
             }
             if let Some(d) = line.split_whitespace().find_map(|w| w.strip_prefix("device=")) {
                 peer_device = d.to_string();
             }
         }
+        if on_cpu {
+            // ONNX Runtime on the same exported network (one model for every batch size: the
+            // batch is free in the graph), what a user would run instead of us on a CPU.
+            let dir = tempfile::tempdir()?;
+            let onnx = dir.path().join("densedepth.onnx");
+            let net = config.init(&device);
+            let file = model_bundle_file(&config, [h, w]);
+            std::fs::write(&onnx, model::onnx::export(&net, &file)?)?;
+            let onnx = onnx.display().to_string();
+            let mut ort_args = vec!["--model", onnx.as_str()];
+            ort_args.extend(common);
+            for line in run_peer(&args.python, "onnx_runtime.py", &ort_args)? {
+                if let (Some(batch), Some(f)) = (field(&line, "batch="), field(&line, "forward_ms=")) {
+                    ort.push((batch as usize, f));
+                }
+            }
+        }
     }
 
     println!();
     let peer_name = if peer_device == "cpu" { "PyTorch".to_string() } else { format!("PyTorch {peer_device}") };
+    let ms = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0}"));
+    let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}", a / b));
     println!(
-        "| batch | {burn_name} forward ms | {peer_name} forward ms | ratio | {burn_name} train step ms | {peer_name} train step ms | ratio |"
+        "| batch | {burn_name} forward ms | {peer_name} forward ms | ratio | ONNX Runtime forward ms | ratio | {burn_name} train step ms | {peer_name} train step ms | ratio |"
     );
-    println!("|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for (batch, f, t) in rows {
         let p = peer.iter().find(|p| p.0 == batch);
-        let (pf, pt) = p.map(|p| (format!("{:.0}", p.1), format!("{:.0}", p.2))).unwrap_or(("-".into(), "-".into()));
-        let (rf, rt) =
-            p.map(|p| (format!("{:.2}", f / p.1), format!("{:.2}", t / p.2))).unwrap_or(("-".into(), "-".into()));
-        println!("| {batch} | {f:.0} | {pf} | {rf} | {t:.0} | {pt} | {rt} |");
+        let o = ort.iter().find(|o| o.0 == batch).map(|o| o.1);
+        let (pf, pt) = (p.map(|p| p.1), p.map(|p| p.2));
+        // `--forward-only` leaves the train step unmeasured (NaN).
+        let (t, pt) = if t.is_nan() { (None, None) } else { (Some(t), pt) };
+        println!(
+            "| {batch} | {f:.0} | {} | {} | {} | {} | {} | {} | {} |",
+            ms(pf),
+            ratio(f, pf),
+            ms(o),
+            ratio(f, o),
+            ms(t),
+            ms(pt),
+            t.map_or("-".into(), |t| ratio(t, pt))
+        );
     }
     Ok(())
+}
+
+/// `key=value` of a peer's output line, as a number.
+fn field(line: &str, key: &str) -> Option<f64> {
+    line.split_whitespace().find_map(|w| w.strip_prefix(key)).and_then(|v| v.parse::<f64>().ok())
+}
+
+/// Runs `peers/SCRIPT` with `python`; its standard output's lines.
+fn run_peer(python: &str, script: &str, args: &[&str]) -> Result<Vec<String>> {
+    let script = format!("{}/peers/{script}", env!("CARGO_MANIFEST_DIR"));
+    let out =
+        Command::new(python).arg(&script).args(args).output().with_context(|| format!("running {python} {script}"))?;
+    if !out.status.success() {
+        bail!("peer {script} failed: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    Ok(String::from_utf8_lossy(&out.stdout).lines().map(String::from).collect())
+}
+
+/// The description the ONNX export's metadata carries, for a benchmark's untrained network.
+fn model_bundle_file(config: &DenseDepthConfig, [h, w]: [usize; 2]) -> model::bundle::BundleFile {
+    model::bundle::BundleFile::new(config.clone(), [h, w], sensor::Sensor::default(), model::DepthScale::paper(9.4))
 }

@@ -5,24 +5,12 @@
 use std::path::Path;
 
 use dataset::{Renderer, SensorUnit};
-use model::bundle::{BUNDLE_FORMAT_VERSION, BundleFile, write_bundle};
+use model::bundle::{BundleFile, write_bundle};
 use model::{DenseDepthConfig, DenseNetConfig, DepthScale};
 
 /// The description of a bundle of `model` at 64x64 for `unit`.
 pub fn bundle_file(model: DenseDepthConfig, unit: &SensorUnit) -> BundleFile {
-    BundleFile {
-        format_version: BUNDLE_FORMAT_VERSION,
-        input_encoding: model.input.encoding().into(),
-        model,
-        input_height_px: 64,
-        input_width_px: 64,
-        depth_scale: DepthScale::paper(unit.sensor.max_depth_mm as f32),
-        sensor: unit.sensor.clone(),
-        reference_image: None,
-        training: None,
-        weights_sha256: Default::default(),
-        safetensors_keys: Default::default(),
-    }
+    BundleFile::new(model, [64, 64], unit.sensor.clone(), DepthScale::paper(unit.sensor.max_depth_mm as f32))
 }
 
 /// A bundle with an untrained tiny network for simulated unit 3, with its reference image.
