@@ -33,6 +33,7 @@ fn run(weights: PathBuf, io: PathBuf) -> Result<(f32, f32), String> {
     );
     let file = TensorFile::open(&io).map_err(|e| e.to_string())?;
     let input = file.tensor::<4>("input", &device).map_err(|e| e.to_string())?;
+    imported.model.check_input(input.dims()).map_err(|e| format!("{}: `input`: {e}", io.display()))?;
     let (got, want_name) = if imported.encoder_only {
         (imported.model.encoder.forward(input).norm5, "norm5")
     } else {

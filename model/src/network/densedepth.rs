@@ -41,14 +41,22 @@ impl DenseDepth {
         self.forward_with(images, mode)
     }
 
+    /// Panics on an input [`check_input`](Self::check_input) refuses.
     pub fn forward_with(&self, images: Tensor<4>, mode: Upsample) -> Tensor<4> {
-        let [_, c, h, w] = images.dims();
-        let want = self.encoder.conv0.weight.dims()[1];
-        assert!(c == want, "this DenseDepth takes {want} input channels ([N, {want}, H, W]), got {c}");
-        if let Err(e) = DenseDepthConfig::check_input_hw([h, w]) {
+        if let Err(e) = self.check_input(images.dims()) {
             panic!("{e}");
         }
         self.decoder.forward(self.encoder.forward(images.clone()), images, mode)
+    }
+
+    /// Whether this network takes an input of shape `[N, C, H, W]`: its channel count, both
+    /// sides at least 32 px. Callers with inputs from outside check here and report the error.
+    pub fn check_input(&self, [_, c, h, w]: [usize; 4]) -> Result<(), String> {
+        let want = self.encoder.conv0.weight.dims()[1];
+        if c != want {
+            return Err(format!("this DenseDepth takes {want} input channels ([N, {want}, H, W]), got {c}"));
+        }
+        DenseDepthConfig::check_input_hw([h, w])
     }
 
     /// The same network for inference only: BatchNorms that follow a convolution are folded
@@ -73,6 +81,18 @@ mod tests {
         let device = crate::backend::default_device();
         let model = DenseDepthConfig::new(crate::network::DenseNetConfig::tiny()).init(&device);
         model.forward(Tensor::zeros([1, 3, 31, 64], &device));
+    }
+
+    #[test]
+    fn input_shapes_are_checked_without_a_panic() {
+        let device = crate::backend::default_device();
+        let config = DenseDepthConfig::new(crate::network::DenseNetConfig::tiny());
+        let model = config.clone().with_input(crate::InputChannels::RgbDifference).init(&device);
+        assert_eq!(model.check_input([1, 6, 570, 570]), Ok(()));
+        let e = model.check_input([1, 3, 570, 570]).unwrap_err();
+        assert!(e.contains("takes 6 input channels") && e.contains("got 3"), "{e}");
+        let e = config.init(&device).check_input([2, 3, 570, 20]).unwrap_err();
+        assert!(e.contains("570x20") && e.contains("at least 32"), "{e}");
     }
 
     /// Sides that are not multiples of 32 (odd ones included) give the output size
