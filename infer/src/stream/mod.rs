@@ -148,7 +148,7 @@ fn capture(source: &mut dyn Source, predictor: &Predictor, mailbox: &Mailbox, st
     let mut channels_checked = false;
     while let Some(delivered) = source.next(stop) {
         match delivered {
-            Delivered::Skipped(names) => mailbox.skipped(names.len() as u64),
+            Delivered::Skipped(n) => mailbox.skipped(n),
             Delivered::Unreadable { name, message } => mailbox.unreadable(format!("{name}: {message}")),
             Delivered::Frame { name, arrived, raw } => {
                 let path = std::path::Path::new(&name);

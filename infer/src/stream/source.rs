@@ -24,7 +24,7 @@ pub enum Delivered {
     Frame { name: String, arrived: Instant, raw: RawFrame },
     /// Frames that went stale before they were read (a paced source behind its schedule):
     /// counted, never decoded.
-    Skipped(Vec<String>),
+    Skipped(u64),
     /// A frame that could not be read; the stream goes on.
     Unreadable { name: String, message: String },
 }
@@ -216,14 +216,12 @@ impl Source for GlobSource {
         let mut arrived = Instant::now();
         if let Some(fps) = self.fps {
             // The frame the camera would show now; those released before it are stale.
-            let due = (start.elapsed().as_secs_f64() * fps) as usize;
+            // The last frame is never stale: nothing newer replaces it.
+            let due = ((start.elapsed().as_secs_f64() * fps) as usize).min(self.paths.len() - 1);
             if due > self.next_index {
-                let end = due.min(self.paths.len() - 1).max(self.next_index);
-                if end > self.next_index {
-                    let stale = self.paths[self.next_index..end].iter().map(|p| p.display().to_string()).collect();
-                    self.next_index = end;
-                    return Some(Delivered::Skipped(stale));
-                }
+                let stale = (due - self.next_index) as u64;
+                self.next_index = due;
+                return Some(Delivered::Skipped(stale));
             }
             arrived = start + Duration::from_secs_f64(self.next_index as f64 / fps);
             sleep_unless_stopped(arrived.saturating_duration_since(Instant::now()), stop);
