@@ -94,6 +94,8 @@ enum Command {
         /// Keep the network's own reading of the reference frame (by default subtracted).
         #[arg(long)]
         no_tare: bool,
+        #[command(flatten)]
+        ros2: Ros2Args,
     },
     /// Median milliseconds per frame (network alone, end to end, a frame without contact),
     /// beside the bundle's recorded test error.
@@ -273,6 +275,54 @@ fn camera(device: &str, _fps: Option<f64>, _sensor: &sensor::Sensor) -> Result<B
     anyhow::bail!("{device}: this infer was built without V4L2 cameras; build it with `--features v4l2`")
 }
 
+#[derive(clap::Args)]
+struct Ros2Args {
+    /// Publish on ROS 2 (build with `--features ros2`): NAMESPACE/points (PointCloud2,
+    /// metres, sensor frame), NAMESPACE/depth (Image 32FC1, metres), NAMESPACE/contact
+    /// (String, JSON summary).
+    #[arg(long)]
+    ros2: bool,
+    #[arg(long, default_value = "/densetact")]
+    ros2_namespace: String,
+    /// The DDS domain (default: $ROS_DOMAIN_ID, else 0).
+    #[arg(long)]
+    ros2_domain: Option<u16>,
+    /// The messages' frame_id: the sensor frame's name in the robot's TF tree.
+    #[arg(long, default_value = "densetact")]
+    frame_id: String,
+}
+
+impl Ros2Args {
+    /// The domain asked for, else ROS 2's environment variable, else 0; ROS 2 allows 0..=232.
+    #[cfg(feature = "ros2")]
+    fn domain(&self) -> Result<u16> {
+        let domain = match (self.ros2_domain, std::env::var("ROS_DOMAIN_ID")) {
+            (Some(d), _) => d,
+            (None, Ok(v)) if !v.trim().is_empty() => {
+                v.trim().parse().with_context(|| format!("ROS_DOMAIN_ID={v:?} is not a domain number"))?
+            }
+            _ => 0,
+        };
+        anyhow::ensure!(domain <= 232, "ROS 2 domain {domain}: ROS 2 domains are 0 to 232");
+        Ok(domain)
+    }
+
+    #[cfg(feature = "ros2")]
+    fn sink(&self) -> Result<Option<Box<dyn Sink>>> {
+        if !self.ros2 {
+            return Ok(None);
+        }
+        let sink = infer::stream::Ros2Sink::new(&self.ros2_namespace, &self.frame_id, self.domain()?);
+        Ok(Some(Box::new(sink.map_err(anyhow::Error::msg)?)))
+    }
+
+    #[cfg(not(feature = "ros2"))]
+    fn sink(&self) -> Result<Option<Box<dyn Sink>>> {
+        anyhow::ensure!(!self.ros2, "--ros2: this infer was built without ROS 2; build it with `--features ros2`");
+        Ok(None)
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 fn stream(
     bundle: PathBuf,
@@ -284,7 +334,9 @@ fn stream(
     poll_ms: u64,
     device: String,
     no_tare: bool,
+    ros2: Ros2Args,
 ) -> Result<()> {
+    let mut ros2 = ros2.sink()?;
     let source_path = std::path::Path::new(&source);
     if let Some(out) = &out {
         let watched = if source_path.is_dir() { Some(source_path) } else { None };
@@ -306,9 +358,15 @@ fn stream(
     if let Some(folder) = folder.as_mut() {
         sinks.push(folder);
     }
+    if let Some(ros2) = ros2.as_mut() {
+        sinks.push(ros2.as_mut());
+    }
     let limits = StreamLimits { max_frames, progress_every: Some(std::time::Duration::from_secs(5)) };
     let report = infer::stream::run(&predictor, source, &mut sinks, &limits, &stop)?;
     println!("{}", report.summary());
+    for line in sinks.iter().filter_map(|s| s.summary()) {
+        println!("{line}");
+    }
     let test = infer::bench::recorded_test_l1_mm(&predictor).map_or("not recorded".into(), |v| format!("{v:.4} mm"));
     println!("the bundle's test L1 recorded by training (useful pixels): {test}");
     if let (Some(folder), Some(out)) = (&folder, &out) {
@@ -326,8 +384,8 @@ fn main() -> ExitCode {
             predict(bundle, image, depth_out, colour_out, ply, always, no_tare)
         }
         Command::Eval { bundle, data, split, out, no_tare } => eval(bundle, data, split, out, no_tare),
-        Command::Stream { bundle, source, out, fps, max_frames, idle_exit_s, poll_ms, device, no_tare } => {
-            stream(bundle, source, out, fps, max_frames, idle_exit_s, poll_ms, device, no_tare)
+        Command::Stream { bundle, source, out, fps, max_frames, idle_exit_s, poll_ms, device, no_tare, ros2 } => {
+            stream(bundle, source, out, fps, max_frames, idle_exit_s, poll_ms, device, no_tare, ros2)
         }
         Command::Bench { bundle, image, device, repeats } => bench(bundle, image, device, repeats),
     };

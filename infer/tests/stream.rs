@@ -187,6 +187,22 @@ fn the_command_streams_a_glob_stops_at_max_frames_and_refuses_bad_sources() {
     refused(&["--bundle", b, "--source", &missing], &["no PNG or JPEG frame matches", "nothing-"]);
     #[cfg(not(feature = "v4l2"))]
     refused(&["--bundle", b, "--source", "/dev/video9"], &["/dev/video9", "--features v4l2"]);
+    #[cfg(not(feature = "ros2"))]
+    refused(&["--bundle", b, "--source", &pattern, "--ros2"], &["--ros2", "--features ros2"]);
+    #[cfg(feature = "ros2")]
+    {
+        refused(
+            &["--bundle", b, "--source", &pattern, "--ros2", "--ros2-namespace", "no slash"],
+            &["ROS 2", "no slash"],
+        );
+        refused(&["--bundle", b, "--source", &pattern, "--ros2", "--ros2-domain", "233"], &["233", "0 to 232"]);
+        let o = Command::new(env!("CARGO_BIN_EXE_infer"))
+            .args(["stream", "--bundle", b, "--source", &pattern, "--ros2"])
+            .env("ROS_DOMAIN_ID", "seven")
+            .output()
+            .unwrap();
+        assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("ROS_DOMAIN_ID=\"seven\""));
+    }
     // The output may not be the watched folder, nor a folder of another kind.
     refused(&["--bundle", b, "--source", input.to_str().unwrap(), "--out", input.to_str().unwrap()], &["in"]);
     refused(&["--bundle", b, "--source", &pattern, "--out", b], &["bundle"]);

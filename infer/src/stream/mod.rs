@@ -8,6 +8,8 @@
 
 mod mailbox;
 mod report;
+#[cfg(feature = "ros2")]
+mod ros2;
 mod sink;
 mod source;
 #[cfg(feature = "v4l2")]
@@ -22,6 +24,8 @@ use sensor::{CONTACT_THRESHOLD_MM, DepthMap};
 use crate::{PointCloud, Predictor};
 use mailbox::Mailbox;
 pub use report::{FrameRecord, Percentiles, StreamReport};
+#[cfg(feature = "ros2")]
+pub use ros2::{Ros2Sink, messages as ros2_messages, msg as ros2_msg};
 pub use sink::{FolderSink, Sink};
 pub use source::{Delivered, Delivery, FolderSource, GlobSource, RawFrame, Source, yuyv_to_rgb};
 #[cfg(feature = "v4l2")]
@@ -38,6 +42,8 @@ pub(crate) struct Arrived {
 pub struct FrameResult<'a> {
     /// The frame's name (its file's path, or the camera's sequence number).
     pub name: &'a str,
+    /// When it arrived (its results' timestamp).
+    pub arrived: Instant,
     /// Depth on the crop's grid (mm).
     pub depth: &'a DepthMap,
     /// Pixels deeper than the contact threshold.
@@ -102,8 +108,14 @@ pub fn run(
                 } else {
                     PointCloud::default()
                 };
-                let result =
-                    FrameResult { name: &frame.name, depth: &depth, contact_pixels, cloud: &cloud, network_ran };
+                let result = FrameResult {
+                    name: &frame.name,
+                    arrived: frame.arrived,
+                    depth: &depth,
+                    contact_pixels,
+                    cloud: &cloud,
+                    network_ran,
+                };
                 for sink in sinks.iter_mut() {
                     sink.frame(predictor, &result).map_err(StreamError::Sink)?;
                 }

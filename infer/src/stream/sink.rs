@@ -10,6 +10,11 @@ use crate::cloud::ply_bytes;
 /// Takes each frame's results; an error stops the stream.
 pub trait Sink {
     fn frame(&mut self, predictor: &Predictor, result: &FrameResult) -> Result<(), String>;
+
+    /// A line for the end of the stream, if the sink has something to say.
+    fn summary(&self) -> Option<String> {
+        None
+    }
 }
 
 /// Per frame: `depth/NAME.png` (16-bit, micrometres, as `predict --depth-out`) and, for a frame

@@ -1,0 +1,207 @@
+//! ROS 2 out (feature `ros2`), through a pure-Rust DDS client: no ROS installation needed.
+//!
+//! Per frame, under the namespace given (default `/densetact`):
+//! - `points`: `sensor_msgs/PointCloud2` of the contact patch, x, y, z float32 in metres, in
+//!   the sensor frame (`frame_id` as given), as ROS expects;
+//! - `depth`: `sensor_msgs/Image`, `32FC1`, metres, the crop's grid (zero outside the disk);
+//! - `contact`: `std_msgs/String`, a JSON summary (`frame`, `contact_pixels`, `max_depth_mm`,
+//!   `network_ran`), readable from any ROS 2 tool without a custom message package.
+
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use ros2_client::qos::{Reliability, WhenFull};
+use ros2_client::{Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile};
+
+use super::{FrameResult, Sink};
+use crate::Predictor;
+
+/// The ROS 2 messages published, field for field as their `.msg` definitions (CDR follows the
+/// field order).
+pub mod msg {
+    use serde::{Deserialize, Serialize};
+
+    /// `builtin_interfaces/Time`.
+    #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+    pub struct Time {
+        pub sec: i32,
+        pub nanosec: u32,
+    }
+
+    /// `std_msgs/Header`.
+    #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+    pub struct Header {
+        pub stamp: Time,
+        pub frame_id: String,
+    }
+
+    /// `sensor_msgs/PointField`.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub struct PointField {
+        pub name: String,
+        pub offset: u32,
+        pub datatype: u8,
+        pub count: u32,
+    }
+
+    /// `PointField.FLOAT32`.
+    pub const FLOAT32: u8 = 7;
+
+    /// `sensor_msgs/PointCloud2`.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub struct PointCloud2 {
+        pub header: Header,
+        pub height: u32,
+        pub width: u32,
+        pub fields: Vec<PointField>,
+        pub is_bigendian: bool,
+        pub point_step: u32,
+        pub row_step: u32,
+        #[serde(with = "serde_bytes")]
+        pub data: Vec<u8>,
+        pub is_dense: bool,
+    }
+
+    /// `sensor_msgs/Image`.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub struct Image {
+        pub header: Header,
+        pub height: u32,
+        pub width: u32,
+        pub encoding: String,
+        pub is_bigendian: u8,
+        pub step: u32,
+        #[serde(with = "serde_bytes")]
+        pub data: Vec<u8>,
+    }
+}
+
+/// The messages of one frame.
+pub fn messages(
+    predictor: &Predictor,
+    result: &FrameResult,
+    header: msg::Header,
+) -> (msg::PointCloud2, msg::Image, String) {
+    let points = &result.cloud.points_mm;
+    let data: Vec<u8> = points.iter().flatten().flat_map(|mm| (mm / 1000.0).to_le_bytes()).collect();
+    let field =
+        |name: &str, offset: u32| msg::PointField { name: name.into(), offset, datatype: msg::FLOAT32, count: 1 };
+    let cloud = msg::PointCloud2 {
+        header: header.clone(),
+        height: 1,
+        width: points.len() as u32,
+        fields: vec![field("x", 0), field("y", 4), field("z", 8)],
+        is_bigendian: false,
+        point_step: 12,
+        row_step: 12 * points.len() as u32,
+        data,
+        is_dense: true,
+    };
+    let side = result.depth.size_px;
+    let image = msg::Image {
+        header,
+        height: side,
+        width: side,
+        encoding: "32FC1".into(),
+        is_bigendian: 0,
+        step: 4 * side,
+        data: result.depth.depth_mm.iter().flat_map(|mm| (mm / 1000.0).to_le_bytes()).collect(),
+    };
+    let summary = serde_json::json!({
+        "frame": result.name,
+        "contact_pixels": result.contact_pixels,
+        "max_depth_mm": result.depth.max_mm(),
+        "network_ran": result.network_ran,
+        "sensor_radius_mm": predictor.file.sensor.radius_mm,
+    });
+    (cloud, image, summary.to_string())
+}
+
+/// Publishes each frame's cloud, depth and contact summary.
+pub struct Ros2Sink {
+    frame_id: String,
+    /// Where it publishes, for the summary: namespace and domain.
+    place: String,
+    sent: u64,
+    unsent: u64,
+    points: Publisher<msg::PointCloud2>,
+    depth: Publisher<msg::Image>,
+    contact: Publisher<String>,
+    // Kept alive while publishing: its DDS participant carries the publishers.
+    _node: ros2_client::Node,
+}
+
+impl Ros2Sink {
+    /// Publishes under `namespace` (absolute, such as `/densetact`) in DDS domain `domain_id`
+    /// (ROS 2's `ROS_DOMAIN_ID`; 0 by default), messages stamped with `frame_id`.
+    pub fn new(namespace: &str, frame_id: &str, domain_id: u16) -> Result<Self, String> {
+        let fail = |what: &str, e: &dyn std::fmt::Debug| format!("ROS 2: cannot {what}: {e:?}");
+        let context =
+            Context::with_options(ContextOptions::new().domain_id(domain_id)).map_err(|e| fail("start DDS", &e))?;
+        let mut node = context
+            .new_node(
+                NodeName::new(namespace, "densetact_stream").map_err(|e| fail("name the node", &e))?,
+                NodeOptions::new(),
+            )
+            .map_err(|e| fail("create the node", &e))?;
+        // Reliable, which both reliable and best-effort subscribers (rviz2, `ros2 topic echo`)
+        // accept, keeping the last message only; a subscriber too slow to acknowledge makes a
+        // message unsent (counted), never a stalled stream.
+        let qos = QosProfile::publisher_default().reliability(Reliability::Reliable { when_full: WhenFull::Fail });
+        let topic = |name: &str, package: &str, type_name: &str| {
+            let topic_name = Name::new(namespace, name).map_err(|e| fail("name a topic", &e))?;
+            node.create_topic(&topic_name, MessageTypeName::new(package, type_name), &qos)
+                .map_err(|e| fail("create a topic", &e))
+        };
+        let (points, depth, contact) = (
+            topic("points", "sensor_msgs", "PointCloud2")?,
+            topic("depth", "sensor_msgs", "Image")?,
+            topic("contact", "std_msgs", "String")?,
+        );
+        Ok(Ros2Sink {
+            frame_id: frame_id.into(),
+            place: format!("under {namespace} in domain {domain_id}"),
+            sent: 0,
+            unsent: 0,
+            points: node.create_publisher(&points, None).map_err(|e| fail("publish points", &e))?,
+            depth: node.create_publisher(&depth, None).map_err(|e| fail("publish depth", &e))?,
+            contact: node.create_publisher(&contact, None).map_err(|e| fail("publish contact", &e))?,
+            _node: node,
+        })
+    }
+}
+
+impl Ros2Sink {
+    /// Messages handed to DDS, and messages not sent because a subscriber's window was full.
+    pub fn counts(&self) -> (u64, u64) {
+        (self.sent, self.unsent)
+    }
+}
+
+impl Sink for Ros2Sink {
+    fn frame(&mut self, predictor: &Predictor, result: &FrameResult) -> Result<(), String> {
+        // The frame's arrival on the wall clock.
+        let arrived = SystemTime::now().checked_sub(result.arrived.elapsed()).unwrap_or_else(SystemTime::now);
+        let now = arrived.duration_since(UNIX_EPOCH).unwrap_or_default();
+        let header = msg::Header {
+            stamp: msg::Time { sec: now.as_secs() as i32, nanosec: now.subsec_nanos() },
+            frame_id: self.frame_id.clone(),
+        };
+        let (cloud, image, summary) = messages(predictor, result, header);
+        let results = [
+            self.points.publish(cloud).is_ok(),
+            self.depth.publish(image).is_ok(),
+            self.contact.publish(summary).is_ok(),
+        ];
+        let sent = results.iter().filter(|&&ok| ok).count() as u64;
+        self.sent += sent;
+        self.unsent += 3 - sent;
+        Ok(())
+    }
+
+    fn summary(&self) -> Option<String> {
+        Some(format!(
+            "ROS 2: {} messages published {}, {} not sent (a subscriber's window was full)",
+            self.sent, self.place, self.unsent
+        ))
+    }
+}
