@@ -343,8 +343,8 @@ fn bundles_of_any_input_size_predict_and_too_small_ones_are_refused() {
     let dir = tmp.path().join("small");
     let config = DenseDepthConfig::new(DenseNetConfig::tiny());
     let net = config.init(&device);
-    let file = BundleFile { input_height_px: 31, input_width_px: 64, ..bundle_file(config, &unit) };
+    let file = BundleFile { input_height_px: 28, input_width_px: 64, ..bundle_file(config, &unit) };
     write_bundle(&dir, &net, &file, None, &[]).ok();
-    let e = Predictor::load(&dir, &device).err().expect("a 31 px side is refused").to_string();
-    assert!(e.contains("bundle.json") && e.contains("at least 32"), "{e}");
+    let e = Predictor::load(&dir, &device).err().expect("a 28 px side is refused").to_string();
+    assert!(e.contains("bundle.json") && e.contains("at least 29"), "{e}");
 }

@@ -31,7 +31,7 @@ pub enum Schedule {
 pub struct FitConfig {
     /// The dataset folder.
     pub data: PathBuf,
-    /// Network input, height and width (each at least 32). Default: none (the caller's choice).
+    /// Network input, height and width (each at least 29). Default: none (the caller's choice).
     pub input_hw: [usize; 2],
     /// Default 10.
     pub epochs: usize,
@@ -143,7 +143,7 @@ impl FitConfig {
         check(
             model::DenseDepthConfig::check_input_hw(self.input_hw).is_ok(),
             "--input",
-            "HxW with both sides at least 32",
+            "HxW with both sides at least 29",
             format!("{h}x{w}"),
         )?;
         check(self.epochs > 0, "--epochs", "at least 1", self.epochs.to_string())?;
@@ -226,7 +226,7 @@ mod tests {
             (FitConfig { epochs: 0, ..c.clone() }, "--epochs"),
             (FitConfig { lr: f64::NAN, ..c.clone() }, "--lr"),
             (FitConfig { lr: f64::INFINITY, ..c.clone() }, "--lr"),
-            (FitConfig { input_hw: [64, 31], ..c.clone() }, "--input"),
+            (FitConfig { input_hw: [64, 28], ..c.clone() }, "--input"),
             (FitConfig { val_fraction: 1.0, ..c.clone() }, "--val-fraction"),
             (FitConfig { train_fraction: 0.0, ..c.clone() }, "--train-fraction"),
         ];

@@ -142,7 +142,7 @@ struct FitArgs {
     /// tiny, compact, densenet121, densenet161, densenet169, densenet201.
     #[arg(long, default_value = "compact")]
     preset: String,
-    /// Network input, HxW (each side at least 32, any size); the square crop is resized to it.
+    /// Network input, HxW (each side at least 29, any size); the square crop is resized to it.
     #[arg(long, default_value = "256x256", value_parser = parse_hw)]
     input: [usize; 2],
     /// What the network reads: `rgb` (the paper's) or `rgb-difference` (RGB and its difference to

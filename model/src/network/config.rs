@@ -123,16 +123,17 @@ impl DenseDepthConfig {
         if self.full_resolution { [h, w] } else { [h.div_ceil(2), w.div_ceil(2)] }
     }
 
-    /// The smallest input side: five halvings (floored by the transitions' pooling) must leave
-    /// at least one pixel. Any side from here up works; the decoder upsamples every block to its
-    /// skip's own size.
-    pub const MIN_INPUT_SIDE: usize = 32;
+    /// The smallest input side, PyTorch's too: the stem's convolution and max pool halve
+    /// rounding up, the three transitions' 2x2 average pools halve rounding down, and the last
+    /// must leave a pixel: ceil(ceil(n / 2) / 2) >= 8, so n >= 29. Any side from here up works;
+    /// the decoder upsamples every block to its skip's own size.
+    pub const MIN_INPUT_SIDE: usize = 29;
 
     /// Checks an input size `[h, w]`; the error says why it is refused.
     pub fn check_input_hw([h, w]: [usize; 2]) -> Result<(), String> {
         let min = Self::MIN_INPUT_SIDE;
         if h < min || w < min {
-            return Err(format!("input {h}x{w}: both sides must be at least {min} px (five halvings)"));
+            return Err(format!("input {h}x{w}: both sides must be at least {min} px (five halvings leave one pixel)"));
         }
         Ok(())
     }
