@@ -6,6 +6,8 @@
 //! ```sh
 //! cargo run --release -p infer --features ros2 --example ros2_listen -- [NAMESPACE] [SECONDS] [DOMAIN]
 //! ```
+//!
+//! Defaults: `/densetact`, 30 s, `$ROS_DOMAIN_ID` or 0.
 
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -16,7 +18,11 @@ fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let namespace = args.first().cloned().unwrap_or_else(|| "/densetact".into());
     let seconds: f64 = args.get(1).map_or(Ok(30.0), |s| s.parse()).map_err(|e| format!("SECONDS: {e}"))?;
-    let domain: u16 = args.get(2).map_or(Ok(0), |s| s.parse()).map_err(|e| format!("DOMAIN: {e}"))?;
+    // As `infer stream --ros2`: the domain given, else $ROS_DOMAIN_ID, else 0.
+    let domain_text =
+        args.get(2).cloned().or_else(|| std::env::var("ROS_DOMAIN_ID").ok().filter(|v| !v.trim().is_empty()));
+    let domain: u16 =
+        domain_text.map_or(Ok(0), |s| s.trim().parse()).map_err(|e| format!("DOMAIN or ROS_DOMAIN_ID: {e}"))?;
     let fail = |e: &dyn std::fmt::Debug| format!("ROS 2: {e:?}");
     let context = Context::with_options(ContextOptions::new().domain_id(domain)).map_err(|e| fail(&e))?;
     let mut node = context
@@ -45,6 +51,10 @@ fn main() -> Result<(), String> {
     let mut first: Option<Instant> = None;
     let mut last = Instant::now();
     let report = |delays: &mut Vec<f64>, clouds: u64, images: u64, summaries: u64, points: u64, over_s: f64| {
+        if clouds + images + summaries == 0 {
+            println!("nothing received yet (is `infer stream --ros2` running, in this namespace and domain?)");
+            return;
+        }
         delays.sort_by(f64::total_cmp);
         let q = |p: f64| delays.get(((delays.len() as f64 - 1.0) * p).round() as usize).copied().unwrap_or(f64::NAN);
         println!(
