@@ -5,7 +5,7 @@
 //!   the sensor frame (`frame_id` as given), as ROS expects;
 //! - `depth`: `sensor_msgs/Image`, `32FC1`, metres, the crop's grid (zero outside the disk);
 //! - `contact`: `std_msgs/String`, a JSON summary (`frame`, `contact_pixels`, `max_depth_mm`,
-//!   `network_ran`), readable from any ROS 2 tool without a custom message package.
+//!   `network_ran`, `sensor_radius_mm`), readable from any ROS 2 tool without a custom message package.
 
 use std::time::{SystemTime, UNIX_EPOCH};
 
@@ -75,6 +75,14 @@ pub mod msg {
     }
 }
 
+/// ROS's unit is the metre; ours the millimetre.
+const MM_PER_M: f32 = 1000.0;
+
+/// Little-endian float32 metres, as PointCloud2's and Image's `data` hold them.
+fn metres_le_bytes<'a>(mm: impl Iterator<Item = &'a f32>) -> Vec<u8> {
+    mm.flat_map(|mm| (mm / MM_PER_M).to_le_bytes()).collect()
+}
+
 /// The messages of one frame.
 pub fn messages(
     predictor: &Predictor,
@@ -82,7 +90,7 @@ pub fn messages(
     header: msg::Header,
 ) -> (msg::PointCloud2, msg::Image, String) {
     let points = &result.cloud.points_mm;
-    let data: Vec<u8> = points.iter().flatten().flat_map(|mm| (mm / 1000.0).to_le_bytes()).collect();
+    let data = metres_le_bytes(points.iter().flatten());
     let field =
         |name: &str, offset: u32| msg::PointField { name: name.into(), offset, datatype: msg::FLOAT32, count: 1 };
     let cloud = msg::PointCloud2 {
@@ -104,7 +112,7 @@ pub fn messages(
         encoding: "32FC1".into(),
         is_bigendian: 0,
         step: 4 * side,
-        data: result.depth.depth_mm.iter().flat_map(|mm| (mm / 1000.0).to_le_bytes()).collect(),
+        data: metres_le_bytes(result.depth.depth_mm.iter()),
     };
     let summary = serde_json::json!({
         "frame": result.name,
@@ -168,10 +176,9 @@ impl Ros2Sink {
             _node: node,
         })
     }
-}
 
-impl Ros2Sink {
-    /// Messages handed to DDS, and messages not sent because a subscriber's window was full.
+    /// Messages handed to DDS, and messages it refused (a subscriber's window full, or another
+    /// publish error).
     pub fn counts(&self) -> (u64, u64) {
         (self.sent, self.unsent)
     }
@@ -200,7 +207,7 @@ impl Sink for Ros2Sink {
 
     fn summary(&self) -> Option<String> {
         Some(format!(
-            "ROS 2: {} messages published {}, {} not sent (a subscriber's window was full)",
+            "ROS 2: {} messages published {}, {} not sent (refused by DDS: a subscriber's window full)",
             self.sent, self.place, self.unsent
         ))
     }
