@@ -62,41 +62,7 @@ enum Command {
     /// Frames as they come: depth, contact and point clouds per frame, stale frames dropped
     /// when the network falls behind, throughput and latency percentiles at the end (Ctrl-C
     /// ends a live stream and still writes them).
-    Stream {
-        #[arg(long)]
-        bundle: PathBuf,
-        /// A folder (its new frames, each once, in name order, as they appear), a glob of
-        /// existing frames (quote it: 'frames/*.png'), or a V4L2 camera (/dev/videoN, with the
-        /// `v4l2` feature).
-        #[arg(long)]
-        source: String,
-        /// Per frame depth/NAME.png (16-bit, micrometres) and cloud/NAME.ply (contact frames);
-        /// stream.json and frames.csv at the end.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Release a glob's frames at this rate, as a camera would (stale ones dropped);
-        /// without it every frame is processed, in order, as fast as the network goes.
-        #[arg(long)]
-        fps: Option<f64>,
-        /// Stop after this many processed frames.
-        #[arg(long)]
-        max_frames: Option<u64>,
-        /// Folder source: stop after this many seconds without a new frame (default: run
-        /// until Ctrl-C).
-        #[arg(long)]
-        idle_exit_s: Option<f64>,
-        /// Folder source: how often to look for new frames.
-        #[arg(long, default_value_t = 5)]
-        poll_ms: u64,
-        /// flex (CPU) or wgpu.
-        #[arg(long, default_value = "flex")]
-        device: String,
-        /// Keep the network's own reading of the reference frame (by default subtracted).
-        #[arg(long)]
-        no_tare: bool,
-        #[command(flatten)]
-        ros2: Ros2Args,
-    },
+    Stream(StreamArgs),
     /// Median milliseconds per frame (network alone, end to end, a frame without contact),
     /// beside the bundle's recorded test error.
     Bench {
@@ -231,6 +197,44 @@ fn predict(
     Ok(())
 }
 
+/// What `infer stream` is told.
+#[derive(clap::Args)]
+struct StreamArgs {
+    #[arg(long)]
+    bundle: PathBuf,
+    /// A folder (its new frames, each once, in name order, as they appear), a glob of
+    /// existing frames (quote it: 'frames/*.png'), or a V4L2 camera (/dev/videoN, with the
+    /// `v4l2` feature).
+    #[arg(long)]
+    source: String,
+    /// Per frame depth/NAME.png (16-bit, micrometres) and cloud/NAME.ply (contact frames);
+    /// stream.json and frames.csv at the end.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Release a glob's frames at this rate, as a camera would (stale ones dropped);
+    /// without it every frame is processed, in order, as fast as the network goes.
+    #[arg(long)]
+    fps: Option<f64>,
+    /// Stop after this many processed frames.
+    #[arg(long)]
+    max_frames: Option<u64>,
+    /// Folder source: stop after this many seconds without a new frame (default: run
+    /// until Ctrl-C).
+    #[arg(long)]
+    idle_exit_s: Option<f64>,
+    /// Folder source: how often to look for new frames.
+    #[arg(long, default_value_t = 5)]
+    poll_ms: u64,
+    /// flex (CPU) or wgpu.
+    #[arg(long, default_value = "flex")]
+    device: String,
+    /// Keep the network's own reading of the reference frame (by default subtracted).
+    #[arg(long)]
+    no_tare: bool,
+    #[command(flatten)]
+    ros2: Ros2Args,
+}
+
 /// The source a `--source` names: a camera device, a folder, or a glob (a single file too).
 fn stream_source(
     source: &str,
@@ -323,19 +327,8 @@ impl Ros2Args {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn stream(
-    bundle: PathBuf,
-    source: String,
-    out: Option<PathBuf>,
-    fps: Option<f64>,
-    max_frames: Option<u64>,
-    idle_exit_s: Option<f64>,
-    poll_ms: u64,
-    device: String,
-    no_tare: bool,
-    ros2: Ros2Args,
-) -> Result<()> {
+fn stream(args: StreamArgs) -> Result<()> {
+    let StreamArgs { bundle, source, out, fps, max_frames, idle_exit_s, poll_ms, device, no_tare, ros2 } = args;
     let mut ros2 = ros2.sink()?;
     let source_path = std::path::Path::new(&source);
     if let Some(out) = &out {
@@ -384,9 +377,7 @@ fn main() -> ExitCode {
             predict(bundle, image, depth_out, colour_out, ply, always, no_tare)
         }
         Command::Eval { bundle, data, split, out, no_tare } => eval(bundle, data, split, out, no_tare),
-        Command::Stream { bundle, source, out, fps, max_frames, idle_exit_s, poll_ms, device, no_tare, ros2 } => {
-            stream(bundle, source, out, fps, max_frames, idle_exit_s, poll_ms, device, no_tare, ros2)
-        }
+        Command::Stream(args) => stream(args),
         Command::Bench { bundle, image, device, repeats } => bench(bundle, image, device, repeats),
     };
     match result {
