@@ -137,7 +137,7 @@ impl Generator<'_> {
     /// run again with the same arguments.
     pub fn run(&self) -> Result<RunReport> {
         let start = Instant::now();
-        self.prepare_folder()?;
+        let _claim = self.prepare_folder()?;
         let out = &self.out;
         let done = resumable::finished(
             "samples",
@@ -220,7 +220,7 @@ impl Generator<'_> {
 
     /// Creates the folder, or checks that an existing one was made with the same parameters,
     /// and removes temporary files left by a killed run.
-    fn prepare_folder(&self) -> Result<()> {
+    fn prepare_folder(&self) -> Result<formats::output::Claim> {
         let mut subs = vec!["samples", "depth"];
         if self.params.depth_u8 {
             subs.push("depth_u8");
@@ -235,7 +235,7 @@ impl Generator<'_> {
         };
         let kit = std::path::Path::new(&self.kit.source);
         let inputs: Vec<&Path> = (self.kit.source != "procedural").then_some(kit).into_iter().collect();
-        resumable::prepare(
+        let claim = resumable::prepare(
             &self.out,
             OutputKind::Dataset,
             &inputs,
@@ -248,7 +248,7 @@ impl Generator<'_> {
         if let Some(renderer) = self.renderer {
             write_unit_files(&self.out.join("unit"), renderer)?;
         }
-        Ok(())
+        Ok(claim)
     }
 }
 

@@ -131,7 +131,7 @@ impl Labeller<'_> {
         let kit = std::path::Path::new(&self.kit.source);
         let mut inputs = vec![self.session.as_path()];
         inputs.extend((self.kit.source != "procedural").then_some(kit));
-        resumable::prepare(
+        let _claim = resumable::prepare(
             &self.out,
             formats::output::OutputKind::Dataset,
             &inputs,

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use formats::fs::{jpeg_is_complete, png_is_complete, remove_temporaries};
-use formats::output::OutputKind;
+use formats::output::{Claim, OutputKind};
 use formats::{Progress, read_json, write_json};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -21,7 +21,7 @@ use serde::de::DeserializeOwned;
 /// parameters file `params_name`, or checks that the one there says the same; `what` and `flag`
 /// name the folder's kind and the option that chose it in the refusal.
 /// The folder is claimed first (`formats::output`): new, empty or of this `kind`, and none of
-/// `inputs`.
+/// `inputs`; it is held until the returned claim is dropped.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn prepare<P: Serialize + DeserializeOwned>(
     dir: &Path,
@@ -32,8 +32,8 @@ pub(crate) fn prepare<P: Serialize + DeserializeOwned>(
     params: &P,
     what: &str,
     flag: &str,
-) -> Result<()> {
-    formats::output::claim_dir(dir, kind, inputs)?;
+) -> Result<Claim> {
+    let claim = formats::output::claim_dir(dir, kind, inputs)?;
     for sub in std::iter::once("").chain(subs.iter().copied()) {
         let d = dir.join(sub);
         std::fs::create_dir_all(&d).with_context(|| format!("{}: cannot create folder", d.display()))?;
@@ -56,7 +56,7 @@ pub(crate) fn prepare<P: Serialize + DeserializeOwned>(
     } else {
         write_json(&path, params)?;
     }
-    Ok(())
+    Ok(claim)
 }
 
 /// Whether an image file was written whole (PNG or JPEG, by extension).

@@ -70,7 +70,7 @@ impl SessionWriter<'_> {
         let rows_dir = format!("{SIMULATION_DIR}/rows");
         let kit = std::path::Path::new(&self.kit.source);
         let inputs: Vec<&std::path::Path> = (self.kit.source != "procedural").then_some(kit).into_iter().collect();
-        resumable::prepare(
+        let _claim = resumable::prepare(
             &self.out,
             formats::output::OutputKind::Session,
             &inputs,

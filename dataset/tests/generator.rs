@@ -1,8 +1,7 @@
 //! The generator end to end: determinism, kill -9 and resume, bad arguments.
 
 use std::path::Path;
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
 
 mod common;
 use common::files;
@@ -27,21 +26,8 @@ fn killed_and_resumed_run_equals_an_uninterrupted_one() {
     let count = 400;
 
     // Kill -9 once some samples are done.
-    let mut child = Command::new(BIN)
-        .args(["generate", "--out", a.to_str().unwrap(), "--count", &count.to_string(), "--seed", "11"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let start = Instant::now();
-    loop {
-        let done = std::fs::read_dir(a.join("samples")).map(|d| d.count()).unwrap_or(0);
-        if done >= 10 {
-            break;
-        }
-        assert!(start.elapsed() < Duration::from_secs(120), "no progress");
-        std::thread::sleep(Duration::from_millis(2));
-    }
+    let args = ["generate", "--out", a.to_str().unwrap(), "--count", &count.to_string(), "--seed", "11"];
+    let mut child = common::spawn_until(BIN, &args, &a, 10);
     child.kill().unwrap();
     child.wait().unwrap();
     assert!(!a.join("manifest.json").exists(), "the run finished before it could be killed");
@@ -67,8 +53,9 @@ fn killed_and_resumed_run_equals_an_uninterrupted_one() {
     assert!(fresh.status.success());
     let (fa, fb) = (files(&a, &DATASET_FILES), files(&b, &DATASET_FILES));
     assert_eq!(fa.len(), fb.len());
-    // generator.json, manifest.json and the output marker, then a record and a depth map a sample.
-    assert_eq!(fa.len(), 3 + 2 * count as usize);
+    // generator.json, manifest.json, the output marker and its lock file, then a record and a
+    // depth map a sample.
+    assert_eq!(fa.len(), 4 + 2 * count as usize);
     for ((na, ca), (nb, cb)) in fa.iter().zip(&fb) {
         assert_eq!(na, nb);
         assert!(ca == cb, "{na} differs between the resumed and the uninterrupted run");
@@ -238,4 +225,26 @@ fn every_units_settings_survive_their_json_round_trip() {
         let r = generate(&out, 2, &["--unit", "21"]);
         assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     }
+}
+
+/// Two generators into one folder (a resume started while the first still runs) would remove
+/// each other's temporary files and interleave their work: the second is refused, by name,
+/// while the first runs, and may go on once it has ended (killed, here).
+#[test]
+fn a_second_run_into_a_folder_being_written_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let a = tmp.path().join("a");
+    let mut child =
+        common::spawn_until(BIN, &["generate", "--out", a.to_str().unwrap(), "--count", "400", "--seed", "11"], &a, 2);
+    let second = generate(&a, 400, &[]);
+    let running = child.try_wait().unwrap().is_none();
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(running, "the first run ended before the second started");
+    assert!(!second.status.success());
+    let e = String::from_utf8_lossy(&second.stderr);
+    assert!(e.contains(a.to_str().unwrap()) && e.contains("another process is writing a dataset"), "{e}");
+    let after = generate(&a, 4, &[]);
+    assert!(!after.status.success(), "a different count is refused for its settings, not the lock");
+    assert!(String::from_utf8_lossy(&after.stderr).contains("other settings"));
 }

@@ -4,8 +4,7 @@
 //! same dataset.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Output};
 
 use formats::dataset::Manifest;
 use sensor::DepthMap;
@@ -213,17 +212,8 @@ fn a_labelling_killed_at_any_moment_resumes_to_the_same_dataset() {
     let sensor = truth(&session);
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
     ok(label(&session, &sensor, &a, &[]));
-    let mut child = Command::new(BIN)
-        .args(["label", "--session", s(&session), "--sensor", s(&sensor), "--out", s(&b)])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let start = Instant::now();
-    while std::fs::read_dir(b.join("samples")).map(|d| d.count()).unwrap_or(0) < 5 {
-        assert!(start.elapsed() < Duration::from_secs(120), "no progress");
-        std::thread::sleep(Duration::from_millis(2));
-    }
+    let mut child =
+        common::spawn_until(BIN, &["label", "--session", s(&session), "--sensor", s(&sensor), "--out", s(&b)], &b, 5);
     child.kill().unwrap();
     child.wait().unwrap();
     assert!(!b.join("manifest.json").exists(), "the labelling finished before it could be killed");

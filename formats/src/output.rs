@@ -4,6 +4,8 @@
 //! output of the same kind (its marker file, `.densetact-output`, says which kind wrote it), and
 //! it may be none of the command's inputs nor hold one of them. Anything else is refused before
 //! any work, naming the path and what it holds. A file output may not be one of the inputs.
+//! A claimed folder is held for as long as its command writes: a second command claiming it
+//! meanwhile (two runs resuming into one folder) is refused rather than mixing their files.
 
 use std::path::{Path, PathBuf};
 
@@ -11,6 +13,18 @@ use serde::{Deserialize, Serialize};
 
 /// The marker file a command leaves in each folder it writes.
 pub const MARKER: &str = ".densetact-output";
+
+/// The file a command holds an OS lock on while it writes the folder (released however the
+/// process ends, `kill -9` included).
+pub const LOCK: &str = ".densetact-lock";
+
+/// A claimed folder, held: while this lives, claims of the same folder by other processes (or
+/// other claims in this one) are refused.
+#[must_use = "the folder is held only while the claim lives"]
+#[derive(Debug)]
+pub struct Claim {
+    _lock: std::fs::File,
+}
 
 /// What a folder holds, as the command that wrote it says.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -141,12 +155,29 @@ fn contents(dir: &Path) -> String {
 
 /// Claims the folder `dir` for an output of `kind`: it may be new, empty or a previous output of
 /// the same kind, and neither one of `inputs` nor a folder holding one. Creates it and leaves
-/// the marker. The refusal names the path and what it holds.
-pub fn claim_dir(dir: &Path, kind: OutputKind, inputs: &[&Path]) -> Result<(), OutputError> {
+/// the marker, and holds the folder until the returned claim is dropped. The refusal names the
+/// path and what it holds, or that another process is writing it.
+pub fn claim_dir(dir: &Path, kind: OutputKind, inputs: &[&Path]) -> Result<Claim, OutputError> {
     check_dir(dir, kind, inputs)?;
     std::fs::create_dir_all(dir)
         .map_err(|e| OutputError { path: dir.to_path_buf(), why: format!("cannot create: {e}") })?;
-    mark(dir, kind)
+    mark(dir, kind)?;
+    let path = dir.join(LOCK);
+    let refuse = |why: String| OutputError { path: dir.to_path_buf(), why };
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .map_err(|e| refuse(format!("cannot open its lock file {LOCK}: {e}")))?;
+    match file.try_lock() {
+        Ok(()) => Ok(Claim { _lock: file }),
+        Err(std::fs::TryLockError::WouldBlock) => Err(refuse(format!(
+            "another process is writing {} here (it holds {LOCK}); wait for it to end, or use another path",
+            kind.name()
+        ))),
+        Err(std::fs::TryLockError::Error(e)) => Err(refuse(format!("cannot lock {LOCK}: {e}"))),
+    }
 }
 
 /// [`claim_dir`]'s checks alone, for a folder that is written elsewhere and renamed into place.
@@ -225,15 +256,20 @@ mod tests {
     fn only_new_empty_or_same_kind_folders_are_claimed() {
         let tmp = tempfile::tempdir().unwrap();
         let new = tmp.path().join("new");
-        claim_dir(&new, OutputKind::Bundle, &[]).unwrap();
+        drop(claim_dir(&new, OutputKind::Bundle, &[]).unwrap());
         assert_eq!(marker_kind(&new), Some(OutputKind::Bundle));
-        claim_dir(&new, OutputKind::Bundle, &[]).unwrap();
+        let held = claim_dir(&new, OutputKind::Bundle, &[]).unwrap();
+        // Held: a second claim (another run resuming into it) is refused until the first ends.
+        let e = claim_dir(&new, OutputKind::Bundle, &[]).unwrap_err().to_string();
+        assert!(e.contains("new") && e.contains("another process is writing a bundle"), "{e}");
+        drop(held);
+        drop(claim_dir(&new, OutputKind::Bundle, &[]).unwrap());
         let e = claim_dir(&new, OutputKind::Dataset, &[]).unwrap_err().to_string();
         assert!(e.contains("new") && e.contains("holds a bundle, not a dataset"), "{e}");
 
         let empty = tmp.path().join("empty");
         std::fs::create_dir(&empty).unwrap();
-        claim_dir(&empty, OutputKind::Run, &[]).unwrap();
+        drop(claim_dir(&empty, OutputKind::Run, &[]).unwrap());
 
         let theirs = tmp.path().join("theirs");
         std::fs::create_dir(&theirs).unwrap();
@@ -251,7 +287,7 @@ mod tests {
     fn an_input_or_a_folder_holding_one_is_refused() {
         let tmp = tempfile::tempdir().unwrap();
         let run = tmp.path().join("run");
-        claim_dir(&run, OutputKind::Run, &[]).unwrap();
+        let _claim = claim_dir(&run, OutputKind::Run, &[]).unwrap();
         // `export --run R --out R`: the same folder, spelt differently.
         let same = tmp.path().join("x/../run");
         let e = check_dir(&same, OutputKind::Bundle, &[&run]).unwrap_err().to_string();

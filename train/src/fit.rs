@@ -83,7 +83,7 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
     let Some(device) = options.devices.first() else { bail!("no training device given") };
     let folders = config.folders();
     let inputs: Vec<&Path> = folders.iter().map(|p| p.as_path()).collect();
-    formats::output::claim_dir(run_dir, OutputKind::Run, &inputs)?;
+    let _claim = formats::output::claim_dir(run_dir, OutputKind::Run, &inputs)?;
     let (mut train, mut val) = select(config)?;
     train.set_model(&start.model_config)?;
     val.set_model(&start.model_config)?;

@@ -215,3 +215,21 @@ fn a_cpu_resume_loads_no_gpu_runtime() {
     };
     assert_eq!(loader_lines(&["--resume"]), 0, "the Vulkan loader ran during a CPU resume");
 }
+
+/// A run folder another process is training into (here: held by this test) is refused by
+/// name before any work; once it is let go, the same command trains.
+#[test]
+fn a_run_folder_being_written_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    tiny_dataset(&data);
+    let run = tmp.path().join("run");
+    let held = formats::output::claim_dir(&run, formats::output::OutputKind::Run, &[]).unwrap();
+    let args = ["fit", "--data", &s(&data), "--out", &s(&run), "--preset", "tiny", "--input", "64x64", "--epochs", "1"];
+    let e = err(&train(&args));
+    assert!(e.contains(&s(&run)) && e.contains("another process is writing a training run"), "{e}");
+    assert!(!run.join("checkpoint").exists());
+    drop(held);
+    ok(&train(&args));
+    assert!(run.join("checkpoint").exists());
+}

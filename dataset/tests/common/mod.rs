@@ -17,3 +17,20 @@ pub fn files(dir: &Path, subs: &[&str]) -> Vec<(String, Vec<u8>)> {
     }
     out
 }
+
+/// Starts the `dataset` binary `bin` with `args`, quiet, and returns it once `dir/samples`
+/// holds at least `samples` files (a run to kill or to race part way).
+pub fn spawn_until(bin: &str, args: &[&str], dir: &Path, samples: usize) -> std::process::Child {
+    let child = std::process::Command::new(bin)
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while std::fs::read_dir(dir.join("samples")).map(|d| d.count()).unwrap_or(0) < samples {
+        assert!(start.elapsed() < std::time::Duration::from_secs(120), "no progress");
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    child
+}

@@ -24,17 +24,20 @@ pub struct FolderSink {
     out: PathBuf,
     /// Names used so far: frames of the same file name from two folders do not overwrite.
     used: HashSet<String>,
+    /// Held while streaming: a second stream into the same folder is refused.
+    _claim: formats::output::Claim,
 }
 
 impl FolderSink {
-    /// `out` must have been checked (`formats::output::check_dir`); it is created and marked.
+    /// `out` must have been checked against the inputs (`formats::output::check_dir`); it is
+    /// claimed (created, marked and held) here.
     pub fn new(out: &Path) -> Result<Self, formats::output::OutputError> {
+        let claim = formats::output::claim_dir(out, formats::output::OutputKind::Stream, &[])?;
         for sub in ["depth", "cloud"] {
             std::fs::create_dir_all(out.join(sub))
                 .map_err(|e| formats::output::OutputError { path: out.join(sub), why: e.to_string() })?;
         }
-        formats::output::mark(out, formats::output::OutputKind::Stream)?;
-        Ok(FolderSink { out: out.to_path_buf(), used: HashSet::new() })
+        Ok(FolderSink { out: out.to_path_buf(), used: HashSet::new(), _claim: claim })
     }
 
     /// The output name of a frame: its file's stem, made unique within the stream.
