@@ -80,6 +80,9 @@ pub fn rgb_planes(img: &RgbImage, [h, w]: [usize; 2]) -> Vec<f32> {
     input
 }
 
+/// A change to channel-major R, G, B planes, in place.
+pub type PlaneEdit<'a> = &'a dyn Fn(&mut [f32]);
+
 /// The unit's reference frame is needed and missing, or does not fit the crop.
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]
@@ -128,9 +131,34 @@ impl InputEncoder {
     /// photometric jitter): the difference channels then see the edited frame against the
     /// untouched reference, as a drifting lamp would show.
     pub fn encode_with(&self, img: &RgbImage, edit: impl FnOnce(&mut [f32])) -> Vec<f32> {
+        self.encode_looking(img, None, edit)
+    }
+
+    /// Like [`encode_with`](Self::encode_with), with `look` applied first to the frame's and the
+    /// reference's R, G, B planes alike: the scene as another unit's camera and lights would
+    /// show it (training's variation between units), before `edit` changes the frame alone.
+    pub fn encode_looking(
+        &self,
+        img: &RgbImage,
+        look: Option<PlaneEdit<'_>>,
+        edit: impl FnOnce(&mut [f32]),
+    ) -> Vec<f32> {
         let mut planes = rgb_planes(img, self.hw);
+        if let Some(look) = look {
+            look(&mut planes);
+        }
         edit(&mut planes);
         if let Some(reference) = &self.reference {
+            let looked;
+            let reference = match look {
+                Some(look) => {
+                    let mut r = reference.clone();
+                    look(&mut r);
+                    looked = r;
+                    &looked
+                }
+                None => reference,
+            };
             let difference: Vec<f32> = planes.iter().zip(reference).map(|(a, b)| DIFFERENCE_GAIN * (a - b)).collect();
             planes.extend(difference);
         }
@@ -169,6 +197,16 @@ mod tests {
         // The edit (jitter) reaches the difference too.
         let edited = enc.encode_with(&reference, |p| p.iter_mut().for_each(|v| *v += 0.01));
         assert!((edited[3 * per] - DIFFERENCE_GAIN * 0.01).abs() < 1e-6);
+        // A look changes the reference as it changes the frame: the reference still reads as
+        // no difference, and a brighter frame's difference is that of the looked values.
+        let halve = |p: &mut [f32]| p.iter_mut().for_each(|v| *v *= 0.5);
+        let looked = enc.encode_looking(&reference, Some(&halve), |_| {});
+        assert!((looked[0] - 50.0 / 255.0).abs() < 1e-6);
+        assert!(looked[3 * 128..].iter().all(|&v| v == 0.0));
+        let brighter_looked = enc.encode_looking(&uniform([110, 100, 90]), Some(&halve), |_| {});
+        for (c, w) in want.into_iter().enumerate() {
+            assert!((brighter_looked[(3 + c) * per] - 0.5 * w).abs() < 1e-6, "channel {c}");
+        }
     }
 
     #[test]

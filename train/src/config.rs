@@ -85,6 +85,11 @@ pub struct FitConfig {
     /// unit is the one a bundle describes. Default none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub more_data: Vec<PathBuf>,
+    /// Vary each training sample's look as units differ (`train::data::Look`: colour gains
+    /// and a tone exponent on the frame and its reference alike), for a base model that should
+    /// read units it never saw. Default false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub vary_look: bool,
 }
 
 fn one() -> f64 {
@@ -127,6 +132,7 @@ impl FitConfig {
             patience: None,
             max_minutes: None,
             more_data: Vec::new(),
+            vary_look: false,
         }
     }
 

@@ -3,7 +3,7 @@
 //! Each item is the unit's RGB crop resized to the network's input, and the depth map resized to
 //! half of it in network units. Augmentations keep the colour-to-normal geometry: brightness and
 //! contrast jitter and noise only, never channel swaps, flips or rotations (the LEDs would not
-//! turn with them).
+//! turn with them); a base model may also vary each sample's look as units differ ([`Look`]).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -48,16 +48,47 @@ pub struct Jitter {
     pub offset: f32,
     pub noise_sd: f32,
     pub seed: u64,
+    /// Applied only where the dataset varies the look ([`DepthDataset::vary_look`]).
+    pub look: Look,
 }
 
 impl Jitter {
     pub fn draw(seed: u64, epoch: u64, index: u64) -> Self {
         let mut rng = SplitMix64::for_item(seed ^ epoch.wrapping_mul(0x9e37_79b9), index);
-        Jitter {
-            gain: rng.range(0.9, 1.1) as f32,
-            offset: rng.range(-0.03, 0.03) as f32,
-            noise_sd: rng.range(0.0, 0.01) as f32,
-            seed: rng.next_u64(),
+        let (gain, offset, noise_sd, seed) =
+            (rng.range(0.9, 1.1) as f32, rng.range(-0.03, 0.03) as f32, rng.range(0.0, 0.01) as f32, rng.next_u64());
+        // Drawn after the rest, so that runs without it see the draws they always saw.
+        let mut log_uniform = |ratio: f64| rng.range(-ratio.ln(), ratio.ln()).exp() as f32;
+        let gain_rgb = [log_uniform(Look::GAIN_RATIO), log_uniform(Look::GAIN_RATIO), log_uniform(Look::GAIN_RATIO)];
+        let look = Look { gain_rgb, exponent: log_uniform(Look::EXPONENT_RATIO) };
+        Jitter { gain, offset, noise_sd, seed, look }
+    }
+}
+
+/// The same scene as another unit would show it: a gain per colour channel (LED brightness and
+/// colour, exposure) and an exponent on the encoded values (a camera of another gamma), applied
+/// to the frame and the unit's reference frame alike. Its spread covers
+/// `SensorUnit::from_seed`'s between two units: LED gains 0.85-1.15 times 0.92-1.08 per colour,
+/// gamma 1.0-2.2.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Look {
+    pub gain_rgb: [f32; 3],
+    pub exponent: f32,
+}
+
+impl Look {
+    /// Gains are drawn log-uniform in `1/GAIN_RATIO ..= GAIN_RATIO`.
+    pub const GAIN_RATIO: f64 = 1.25;
+    /// Exponents are drawn log-uniform in `1/EXPONENT_RATIO ..= EXPONENT_RATIO`.
+    pub const EXPONENT_RATIO: f64 = 1.5;
+
+    /// Changes channel-major R, G, B planes (values in 0..=1) in place.
+    pub fn apply(&self, planes: &mut [f32]) {
+        let per = planes.len() / 3;
+        for (plane, gain) in planes.chunks_mut(per.max(1)).zip(self.gain_rgb) {
+            for v in plane {
+                *v = (gain * v.powf(self.exponent)).clamp(0.0, 1.0);
+            }
         }
     }
 }
@@ -89,6 +120,9 @@ pub struct DepthDataset {
     /// The network's output size (half the input's unless the model says otherwise).
     pub output_hw: [usize; 2],
     pub scale: DepthScale,
+    /// Whether a jittered item's look varies too ([`Jitter::look`]): training a base model
+    /// for units it has not seen. Default false.
+    pub vary_look: bool,
 }
 
 impl DepthDataset {
@@ -147,6 +181,7 @@ impl DepthDataset {
             records,
             input_hw,
             output_hw,
+            vary_look: false,
         })
     }
 
@@ -227,7 +262,9 @@ impl DepthDataset {
         if let Some(d) = depth.depth_mm.iter().find(|&&d| !(0.0..=limit).contains(&d)) {
             return Err(bad(&depth_path, format!("depth {d} mm is outside 0..{} mm", unit.sensor.max_depth_mm)));
         }
-        let image = unit.encoder.encode_with(&img, |planes| {
+        let look = jitter.filter(|_| self.vary_look).map(|j| move |planes: &mut [f32]| j.look.apply(planes));
+        let look = look.as_ref().map(|f| f as &dyn Fn(&mut [f32]));
+        let image = unit.encoder.encode_looking(&img, look, |planes| {
             if let Some(j) = jitter {
                 let mut rng = SplitMix64::new(j.seed);
                 for v in planes {

@@ -85,6 +85,7 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
     let inputs: Vec<&Path> = folders.iter().map(|p| p.as_path()).collect();
     let _claim = formats::output::claim_dir(run_dir, OutputKind::Run, &inputs)?;
     let (mut train, mut val) = select(config)?;
+    train.vary_look = config.vary_look;
     train.set_model(&start.model_config)?;
     val.set_model(&start.model_config)?;
     let mut run = Run::start(run_dir, config, start, options, train, val)?;

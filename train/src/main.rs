@@ -121,6 +121,10 @@ struct Common {
     /// loss).
     #[arg(long, default_value_t = 0.0)]
     contact_weight: f64,
+    /// Vary each training sample's look as units differ (colour gains, a tone exponent; frame
+    /// and reference alike): for a base model trained with --more-data.
+    #[arg(long)]
+    vary_look: bool,
     /// Stop when the validation L1 (held-out samples) has not improved for this many epochs.
     #[arg(long)]
     patience: Option<usize>,
@@ -235,6 +239,7 @@ fn config(c: &Common, input_hw: [usize; 2], net_range: [f32; 2], freeze_encoder:
         patience: c.patience,
         max_minutes: c.max_minutes,
         more_data: c.more_data.clone(),
+        vary_look: c.vary_look,
     };
     config.validate()?;
     Ok(config)

@@ -349,3 +349,54 @@ fn several_units_train_together_each_read_with_its_own_unit() {
     let e = train::data::DepthDataset::open_all(&[a.clone(), c.clone()], None, [64, 64]).err().unwrap().to_string();
     assert!(e.contains("manifest.json") && e.contains("radius"), "{e}");
 }
+
+/// A varied look (a base model's variation between units) changes the frame and the unit's
+/// reference alike, so the difference channels see another unit's rendering of the same dent;
+/// a dataset that does not vary looks ignores it; the draws stay within their documented spread.
+#[test]
+fn a_varied_look_changes_frame_and_reference_alike() {
+    use train::data::{Jitter, Look};
+    let tmp = tempfile::tempdir().unwrap();
+    let a = tmp.path().join("a");
+    unit_dataset(&a, 3, 4);
+    let mut set = train::data::DepthDataset::open(&a, None, [64, 64]).unwrap();
+    set.set_model(
+        &model::DenseDepthConfig::new(model::DenseNetConfig::tiny()).with_input(model::InputChannels::RgbDifference),
+    )
+    .unwrap();
+    let look = Look { gain_rgb: [1.2, 0.9, 1.05], exponent: 1.3 };
+    let jitter = Jitter { gain: 1.0, offset: 0.0, noise_sd: 0.0, seed: 1, look };
+    let plain = set.load(1, None).unwrap().image;
+    assert_eq!(set.load(1, Some(jitter)).unwrap().image, plain, "the look is ignored unless the dataset varies it");
+
+    set.vary_look = true;
+    let looked = set.load(1, Some(jitter)).unwrap().image;
+    let per = 64 * 64;
+    let (rgb, difference) = plain.split_at(3 * per);
+    let mut want_rgb = rgb.to_vec();
+    look.apply(&mut want_rgb);
+    let mut reference: Vec<f32> =
+        rgb.iter().zip(difference).map(|(v, d)| v - d / model::input::DIFFERENCE_GAIN).collect();
+    look.apply(&mut reference);
+    for (k, &got) in looked.iter().enumerate() {
+        let want = if k < 3 * per {
+            want_rgb[k]
+        } else {
+            model::input::DIFFERENCE_GAIN * (want_rgb[k - 3 * per] - reference[k - 3 * per])
+        };
+        assert!((got - want).abs() < 1e-4, "value {k}: {got} against {want}");
+    }
+    assert!(looked.iter().zip(&plain).filter(|(a, b)| a != b).count() > per, "the look changed the frame");
+
+    let draws: Vec<Look> = (0..500).map(|i| Jitter::draw(7, 0, i).look).collect();
+    let gains: Vec<f32> = draws.iter().flat_map(|l| l.gain_rgb).collect();
+    let exponents: Vec<f32> = draws.iter().map(|l| l.exponent).collect();
+    let within = |v: &[f32], ratio: f64| {
+        let (lo, hi) = (v.iter().cloned().fold(f32::MAX, f32::min), v.iter().cloned().fold(f32::MIN, f32::max));
+        let r = ratio as f32;
+        assert!(lo >= 1.0 / r - 1e-6 && hi <= r + 1e-6, "{lo}..{hi} outside 1/{r}..{r}");
+        assert!(lo < 1.0 / r.powf(0.8) && hi > r.powf(0.8), "{lo}..{hi} does not fill 1/{r}..{r}");
+    };
+    within(&gains, Look::GAIN_RATIO);
+    within(&exponents, Look::EXPONENT_RATIO);
+}
