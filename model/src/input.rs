@@ -149,16 +149,12 @@ impl InputEncoder {
         }
         edit(&mut planes);
         if let Some(reference) = &self.reference {
-            let looked;
-            let reference = match look {
-                Some(look) => {
-                    let mut r = reference.clone();
-                    look(&mut r);
-                    looked = r;
-                    &looked
-                }
-                None => reference,
-            };
+            let looked = look.map(|look| {
+                let mut r = reference.clone();
+                look(&mut r);
+                r
+            });
+            let reference = looked.as_deref().unwrap_or(reference);
             let difference: Vec<f32> = planes.iter().zip(reference).map(|(a, b)| DIFFERENCE_GAIN * (a - b)).collect();
             planes.extend(difference);
         }

@@ -59,7 +59,7 @@ impl Jitter {
             (rng.range(0.9, 1.1) as f32, rng.range(-0.03, 0.03) as f32, rng.range(0.0, 0.01) as f32, rng.next_u64());
         // Drawn after the rest, so that runs without it see the draws they always saw.
         let mut log_uniform = |ratio: f64| rng.range(-ratio.ln(), ratio.ln()).exp() as f32;
-        let gain_rgb = [log_uniform(Look::GAIN_RATIO), log_uniform(Look::GAIN_RATIO), log_uniform(Look::GAIN_RATIO)];
+        let gain_rgb = std::array::from_fn(|_| log_uniform(Look::GAIN_RATIO));
         let look = Look { gain_rgb, exponent: log_uniform(Look::EXPONENT_RATIO) };
         Jitter { gain, offset, noise_sd, seed, look }
     }

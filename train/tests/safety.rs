@@ -225,11 +225,10 @@ fn a_run_folder_being_written_is_refused() {
     tiny_dataset(&data);
     let run = tmp.path().join("run");
     let held = formats::output::claim_dir(&run, formats::output::OutputKind::Run, &[]).unwrap();
-    let args = ["fit", "--data", &s(&data), "--out", &s(&run), "--preset", "tiny", "--input", "64x64", "--epochs", "1"];
-    let e = err(&train(&args));
+    let e = err(&fit(&data, &run, &[]));
     assert!(e.contains(&s(&run)) && e.contains("another process is writing a training run"), "{e}");
     assert!(!run.join("checkpoint").exists());
     drop(held);
-    ok(&train(&args));
+    ok(&fit(&data, &run, &[]));
     assert!(run.join("checkpoint").exists());
 }
