@@ -131,15 +131,29 @@ pub struct ScatterPoint {
     pub label: String,
     pub ms: f64,
     pub l1_mm: f64,
+    /// Spread of the error over training seeds, drawn as a bar of +-1 sd (0: none).
+    pub sd_mm: f64,
 }
 
-/// Run time (ms per frame, log axis) against error (mm): the measured points by group, the
-/// Pareto front joined by a line, and a reference point (the paper's) marked apart.
-pub fn scatter_svg(points: &[ScatterPoint], front: &[usize], reference: (&str, f64, f64)) -> Result<String> {
-    let xs = points.iter().map(|p| p.ms).chain([reference.1]).filter(|v| v.is_finite() && *v > 0.0);
+/// Run time (ms per frame, log axis) against error (mm, `y_desc` says which): the measured
+/// points by group with their seed spread, the Pareto front joined by a line, and a reference
+/// point (the paper's) marked apart where it measures the same error.
+pub fn scatter_svg(
+    points: &[ScatterPoint],
+    front: &[usize],
+    y_desc: &str,
+    reference: Option<(&str, f64, f64)>,
+) -> Result<String> {
+    let xs = points.iter().map(|p| p.ms).chain(reference.map(|r| r.1)).filter(|v| v.is_finite() && *v > 0.0);
     let (x_lo, x_hi) = xs.fold((f64::INFINITY, 0.0f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
     let (x_lo, x_hi) = if x_hi > 0.0 { (x_lo / 2.0, x_hi * 2.0) } else { (0.1, 10.0) };
-    let y_hi = points.iter().map(|p| p.l1_mm).chain([reference.2]).filter(|v| v.is_finite()).fold(0.0, f64::max) * 1.2;
+    let y_hi = points
+        .iter()
+        .map(|p| p.l1_mm + p.sd_mm.max(0.0))
+        .chain(reference.map(|r| r.2))
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max)
+        * 1.2;
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (760, 480)).into_drawing_area();
@@ -154,7 +168,7 @@ pub fn scatter_svg(points: &[ScatterPoint], front: &[usize], reference: (&str, f
         chart
             .configure_mesh()
             .x_desc("median ms per frame (log)")
-            .y_desc("test L1, useful pixels (mm)")
+            .y_desc(y_desc)
             .y_label_formatter(&|v| format!("{v:.2}"))
             .draw()
             .map_err(err)?;
@@ -170,6 +184,10 @@ pub fn scatter_svg(points: &[ScatterPoint], front: &[usize], reference: (&str, f
                 .label(name.to_string())
                 .legend(move |(x, y)| Circle::new((x, y), 5, colour.filled()));
             chart.draw_series(mine.iter().map(|p| label_at(p, &root))).map_err(err)?;
+            let bars = mine.iter().filter(|p| p.sd_mm > 0.0).map(|p| {
+                PathElement::new(vec![(p.ms, p.l1_mm - p.sd_mm), (p.ms, p.l1_mm + p.sd_mm)], colour.stroke_width(2))
+            });
+            chart.draw_series(bars).map_err(err)?;
         }
         let mut line: Vec<(f64, f64)> = front.iter().map(|&i| (points[i].ms, points[i].l1_mm)).collect();
         line.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -178,12 +196,13 @@ pub fn scatter_svg(points: &[ScatterPoint], front: &[usize], reference: (&str, f
             .map_err(err)?
             .label("Pareto front")
             .legend(|(x, y)| PathElement::new(vec![(x - 8, y), (x + 8, y)], BLACK.stroke_width(1)));
-        let (name, ms, l1) = reference;
-        chart
-            .draw_series(std::iter::once(Cross::new((ms, l1), 7, UNCERTAINTY.stroke_width(2))))
-            .map_err(err)?
-            .label(name.to_string())
-            .legend(|(x, y)| Cross::new((x, y), 5, UNCERTAINTY.stroke_width(2)));
+        if let Some((name, ms, l1)) = reference {
+            chart
+                .draw_series(std::iter::once(Cross::new((ms, l1), 7, UNCERTAINTY.stroke_width(2))))
+                .map_err(err)?
+                .label(name.to_string())
+                .legend(|(x, y)| Cross::new((x, y), 5, UNCERTAINTY.stroke_width(2)));
+        }
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.85))
@@ -256,14 +275,22 @@ mod tests {
     fn scatter_has_every_point_the_front_and_the_reference() {
         let points: Vec<ScatterPoint> = [("flex", "a", 10.0, 0.2), ("flex", "b", 20.0, 0.3), ("wgpu", "a", 5.0, 0.25)]
             .iter()
-            .map(|&(g, l, ms, l1)| ScatterPoint { group: g.into(), label: l.into(), ms, l1_mm: l1 })
+            .map(|&(g, l, ms, l1)| ScatterPoint { group: g.into(), label: l.into(), ms, l1_mm: l1, sd_mm: 0.0 })
             .collect();
         let front = pareto_front(&points.iter().map(|p| (p.ms, p.l1_mm)).collect::<Vec<_>>(), 0.0);
         assert_eq!(front, vec![0, 2]);
-        let svg = scatter_svg(&points, &front, ("paper (GPU)", 18.17, 0.281)).unwrap();
+        let svg = scatter_svg(&points, &front, "test L1 (mm)", Some(("paper (GPU)", 18.17, 0.281))).unwrap();
         assert_eq!(svg.matches("<circle").count(), 3 + 2, "three points and two legend marks");
-        for text in ["Pareto front", "paper (GPU)", "flex", "wgpu"] {
+        for text in ["Pareto front", "paper (GPU)", "flex", "wgpu", "test L1 (mm)"] {
             assert!(svg.contains(text), "{text}");
         }
+        // A seed spread adds one bar per point that has one; no reference, no reference's legend.
+        let lines = |svg: &str| svg.matches("<polyline").count();
+        let mut spread = points.clone();
+        spread[1].sd_mm = 0.02;
+        let with_bar = scatter_svg(&spread, &front, "contact L1 (mm)", None).unwrap();
+        let without = scatter_svg(&points, &front, "contact L1 (mm)", None).unwrap();
+        assert_eq!(lines(&with_bar), lines(&without) + 1);
+        assert!(!without.contains("paper (GPU)"));
     }
 }

@@ -40,6 +40,17 @@ impl DenseNetConfig {
         Self::new(12, [2, 4, 6, 4], 32, 4)
     }
 
+    /// Between compact and DenseNet-121 (`cargo xtask bench table`'s family): growth 16,
+    /// blocks of 3, 6, 12, 8 layers.
+    pub fn small() -> Self {
+        Self::new(16, [3, 6, 12, 8], 48, 4)
+    }
+
+    /// Between small and DenseNet-121: growth 24, blocks of 4, 8, 16, 12 layers.
+    pub fn medium() -> Self {
+        Self::new(24, [4, 8, 16, 12], 64, 4)
+    }
+
     /// The encoder of `shared/fixtures/densedepth_tiny.pth`.
     pub fn tiny() -> Self {
         Self::new(10, [2, 3, 4, 3], 24, 2)
@@ -53,6 +64,8 @@ impl DenseNetConfig {
             "densenet169" => Self::densenet169(),
             "densenet201" => Self::densenet201(),
             "compact" => Self::compact(),
+            "small" => Self::small(),
+            "medium" => Self::medium(),
             "tiny" => Self::tiny(),
             _ => return None,
         })
@@ -68,8 +81,8 @@ impl DenseNetConfig {
         Self::PRESETS.into_iter().find(|name| Self::preset(name).as_ref() == Some(self))
     }
 
-    pub const PRESETS: [&'static str; 6] =
-        ["compact", "tiny", "densenet121", "densenet161", "densenet169", "densenet201"];
+    pub const PRESETS: [&'static str; 8] =
+        ["compact", "small", "medium", "tiny", "densenet121", "densenet161", "densenet169", "densenet201"];
 
     /// Channels after each dense block (before its transition halves them).
     pub fn block_channels(&self) -> [usize; 4] {

@@ -119,6 +119,26 @@ mod tests {
         }
     }
 
+    /// `bench table`'s family draws a curve only if its presets are spaced: each at least twice
+    /// the parameters of the one before, from compact to DenseNet-121.
+    #[test]
+    fn the_preset_family_grows_in_steps() {
+        use crate::network::DenseNetConfig;
+        let device = crate::backend::default_device();
+        let family = [
+            DenseNetConfig::compact(),
+            DenseNetConfig::small(),
+            DenseNetConfig::medium(),
+            DenseNetConfig::densenet121(),
+        ];
+        let params: Vec<usize> =
+            family.into_iter().map(|e| DenseDepthConfig::new(e).init(&device).parameters()).collect();
+        // compact, small, medium, DenseNet-121: 0.19, 0.87, 3.26, 10.7 M.
+        for pair in params.windows(2) {
+            assert!(pair[1] >= 2 * pair[0], "{params:?}");
+        }
+    }
+
     #[test]
     fn channels_and_output_size_follow_the_config() {
         let device = crate::backend::default_device();
