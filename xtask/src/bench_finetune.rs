@@ -48,6 +48,10 @@ pub struct Args {
     /// Network input side (square).
     #[arg(long, default_value_t = 128)]
     input: usize,
+    /// Training seed of every run (weights, data order, augmentation, hold-out and the fine-tuning
+    /// subsets): run the study once per seed for the spread. Seed 0's runs keep their old names.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
     /// Work folder: datasets and runs are kept under names that say what made them (units,
     /// scenes, epochs), and a run that finished is reused.
     #[arg(long, default_value = "target/base-model-study")]
@@ -68,7 +72,8 @@ pub fn run(args: Args) -> Result<()> {
     let per_base = args.samples.div_ceil(args.base_units.len().max(1) as u32);
     let base_dirs: Vec<PathBuf> = args.base_units.iter().map(|&u| data_of(u, per_base)).collect::<Result<_>>()?;
     let model_config = network(&args.preset)?;
-    let cfg = |data: &Path| FitConfig { epochs: args.epochs, ..recipe(data, args.input) };
+    let cfg = |data: &Path| FitConfig { epochs: args.epochs, seed: args.seed, ..recipe(data, args.input) };
+    let seeded = if args.seed == 0 { String::new() } else { format!("-s{}", args.seed) };
     let fresh = || Start { model_config: model_config.clone(), weights: None };
     let runs = args.work.join("runs");
 
@@ -78,7 +83,7 @@ pub fn run(args: Args) -> Result<()> {
     // for this one's.
     let units: Vec<String> = args.base_units.iter().map(u64::to_string).collect();
     let look = if args.vary_look { "-look" } else { "" };
-    let base_name = format!("base-{}-{per_base}x{}ep{look}", units.join("_"), args.epochs);
+    let base_name = format!("base-{}-{per_base}x{}ep{look}{seeded}", units.join("_"), args.epochs);
     let base = fit(&runs.join(&base_name), &base_cfg, fresh(), &device, true)?;
     let mut rows = Vec::new();
     for &unit in &args.unseen_units {
@@ -91,7 +96,7 @@ pub fn run(args: Args) -> Result<()> {
             validate(net, &test, &batcher, 4, &device, OnBadData::Stop, "test")
         };
         let own = fit(
-            &runs.join(format!("own-{unit}-{unseen_samples}x{}ep", args.epochs)),
+            &runs.join(format!("own-{unit}-{unseen_samples}x{}ep{seeded}", args.epochs)),
             &cfg(&dir),
             fresh(),
             &device,
@@ -109,6 +114,7 @@ pub fn run(args: Args) -> Result<()> {
                 ..cfg(&dir)
             };
             let start = Start { model_config: model_config.clone(), weights: Some(base.net.clone()) };
+            // The base name carries the seed.
             let name = format!("tuned-{unit}-{unseen_samples}-{percent}pc-{}ep-from-{base_name}", args.finetune_epochs);
             let tuned = fit(&runs.join(name), &tune, start, &device, true)?;
             rows.push((unit, format!("base model fine-tuned on {percent} %"), on_test(&tuned.net)?, own_eval.clone()));
@@ -116,9 +122,10 @@ pub fn run(args: Args) -> Result<()> {
     }
 
     println!(
-        "\nbase model: units {:?}, {} scenes each{}; unseen units {:?}, {} scenes each; {} preset at {}x{}, \
+        "\nseed {}; base model: units {:?}, {} scenes each{}; unseen units {:?}, {} scenes each; {} preset at {}x{}, \
          the quickstart's recipe ({} epochs; fine-tuning {} epochs at a third of the rate); errors on each unseen \
          unit's test split at the network's output resolution (contact: true depth above {} mm)",
+        args.seed,
         args.base_units,
         per_base,
         if args.vary_look { ", looks varied" } else { "" },

@@ -46,8 +46,11 @@ pub struct Args {
     #[arg(long, default_value_t = 60)]
     epochs: usize,
     /// Epochs without a better validation L1 (held-out training scenes) after which a
-    /// configuration's training stops.
-    #[arg(long, default_value_t = 4)]
+    /// configuration's training stops. 4 stopped some seeds at epoch 13-14 on the 27 held-out
+    /// scenes' noise (tiny at 128 px: 0.333 mm contact L1 there against 0.189 for a seed that ran
+    /// to epoch 53); 8 cut compact's seed sd at 64 and 128 px from 0.029 and 0.025 mm to 0.007
+    /// and 0.014 (BENCHMARKS.md).
+    #[arg(long, default_value_t = 8)]
     patience: usize,
     /// Cap on each configuration's training time (minutes, checked at each epoch's end).
     #[arg(long, default_value_t = 90.0)]
@@ -99,7 +102,7 @@ fn nan() -> f64 {
     f64::NAN
 }
 
-/// A row's key in `rows.json`: one per configuration, backend, machine and seed.
+/// A row's key in the recipe's rows file: one per configuration, backend, machine and seed.
 fn row_key(preset: &str, input_px: usize, backend: &str, machine: &str, seed: u64) -> String {
     format!("{preset}@{input_px}/{backend}/{machine}/s{seed}")
 }
@@ -242,16 +245,18 @@ pub fn run(args: Args) -> Result<()> {
     let frame = first_image(&data, &manifest, |s| s.stats.contact_fraction > 0.0)?;
     let untouched = first_image(&data, &manifest, |s| s.stats.contact_fraction == 0.0).unwrap_or(frame.clone());
 
-    let rows_path = args.work.join("rows.json");
-    let mut rows: BTreeMap<String, Row> = match std::fs::read_to_string(&rows_path) {
-        Ok(text) => serde_json::from_str(&text).with_context(|| format!("{}: not rows JSON", rows_path.display()))?,
-        Err(_) => BTreeMap::new(),
-    };
-    // The recipe is part of the name: rows of another recipe are not reused.
+    // The recipe is part of the names of runs and of the rows file: runs and rows of another
+    // recipe are neither reused nor mixed into this recipe's table.
     let budget = format!(
         "e{}-p{}-m{}-b{}-n{}-diff-full-cw5",
         args.epochs, args.patience, args.max_minutes, args.batch, args.samples
     );
+    let rows_path = args.work.join(format!("rows-{budget}.json"));
+    let mut rows: BTreeMap<String, Row> = match std::fs::read_to_string(&rows_path) {
+        Ok(text) => serde_json::from_str(&text).with_context(|| format!("{}: not rows JSON", rows_path.display()))?,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => BTreeMap::new(),
+        Err(e) => return Err(e).with_context(|| format!("{}: cannot read", rows_path.display())),
+    };
     for preset_name in &args.presets {
         for &side in &args.sizes {
             for seed in 0..args.seeds {
@@ -293,7 +298,11 @@ pub fn run(args: Args) -> Result<()> {
             }
         }
     }
-    let rows = summarise(rows.values());
+    // The table is this command's: rows of other presets, sizes or seeds measured earlier under
+    // the same recipe stay in the file but not in the table printed beside it. Rows of other
+    // machines and their backends stay in (a GPU machine's rows file merged into this one).
+    let asked = |r: &&Row| args.presets.contains(&r.preset) && args.sizes.contains(&r.input_px) && r.seed < args.seeds;
+    let rows = summarise(rows.values().filter(asked));
     // The headline is contact L1 (issue 21); errors within 0.1 um are the same model on
     // another backend's rounding.
     let front = pareto_front(&rows.iter().map(|r| (r.network_ms, r.contact.mean)).collect::<Vec<_>>(), 1e-4);
@@ -469,7 +478,7 @@ fn section(args: &Args, rows: &[Summary], front: &[usize], scene_lines: &[String
     s += &format!("Pareto front (network ms against contact L1): {}.\n\n", names.join("; "));
     let spread: Vec<(f64, Spread)> = front.iter().map(|&i| (rows[i].network_ms, rows[i].contact)).collect();
     s += &format!(
-        "Front points whose contact L1 improves on the previous one by more than both seed sds together: {} of {}.\n\n",
+        "Separated front points (from the fastest, each counted when its contact L1 beats the last counted one's by more than both seed sds together): {} of {}.\n\n",
         separated(&spread),
         front.len()
     );
