@@ -252,10 +252,9 @@ pub fn run(args: Args) -> Result<()> {
         args.epochs, args.patience, args.max_minutes, args.batch, args.samples
     );
     let rows_path = args.work.join(format!("rows-{budget}.json"));
-    let mut rows: BTreeMap<String, Row> = match std::fs::read_to_string(&rows_path) {
-        Ok(text) => serde_json::from_str(&text).with_context(|| format!("{}: not rows JSON", rows_path.display()))?,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => BTreeMap::new(),
-        Err(e) => return Err(e).with_context(|| format!("{}: cannot read", rows_path.display())),
+    let mut rows: BTreeMap<String, Row> = match read_if_present(&rows_path)? {
+        Some(text) => serde_json::from_str(&text).with_context(|| format!("{}: not rows JSON", rows_path.display()))?,
+        None => BTreeMap::new(),
     };
     for preset_name in &args.presets {
         for &side in &args.sizes {
@@ -492,13 +491,18 @@ fn section(args: &Args, rows: &[Summary], front: &[usize], scene_lines: &[String
     s
 }
 
+/// The text of `path`, `None` if there is no such file; any other read error names the path.
+fn read_if_present(path: &Path) -> Result<Option<String>> {
+    match std::fs::read_to_string(path) {
+        Ok(text) => Ok(Some(text)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(e).with_context(|| format!("{}: cannot read", path.display())),
+    }
+}
+
 /// Replaces the bench-table section of `path` (or appends one), atomically.
 fn write_section(path: &Path, section: &str) -> Result<()> {
-    let old = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => String::new(),
-        Err(e) => return Err(e).with_context(|| format!("{}: cannot read", path.display())),
-    };
+    let old = read_if_present(path)?.unwrap_or_default();
     let new = splice(&old, section).with_context(|| format!("{}", path.display()))?;
     Ok(formats::fs::write_atomic(path, new.as_bytes())?)
 }
