@@ -16,7 +16,7 @@ pub mod kit;
 pub mod label;
 pub mod mesh;
 pub mod procedural;
-// AVX2 kernels, reached only through `simd::Avx2` tokens.
+// AVX2 kernels, reached only through `simd::Avx2` tokens (or `simd`'s own dispatch).
 #[allow(unsafe_code)]
 pub mod raycast;
 #[allow(unsafe_code)]
@@ -25,6 +25,7 @@ mod resumable;
 pub mod scene;
 pub mod session;
 pub mod shapes;
+#[allow(unsafe_code)]
 mod simd;
 pub mod unit;
 

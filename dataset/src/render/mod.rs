@@ -25,7 +25,7 @@ mod optics;
 mod shade;
 
 pub use grid::PixelGrid;
-use noise::{GaussianNoise, quantise};
+use noise::{Finish, GaussianNoise, quantise};
 use optics::{Drape, LensBlur, Tone};
 use shade::Lighting;
 
@@ -252,21 +252,50 @@ impl Renderer {
     /// The samples whose shading `depth_mm` (checked by the caller to fit the grid) changes, in
     /// grid order, and their sharp values.
     fn changes(&self, depth_mm: &[f32]) -> (Vec<u32>, Radiance) {
-        let mut dirty = vec![false; self.grid.len()];
-        for (i, &d) in depth_mm.iter().enumerate() {
-            if d != 0.0 {
-                dirty[i] = true;
-                for j in self.neighbours_of(i) {
-                    dirty[j] = true;
-                }
-            }
-        }
-        // The housing and what lies beyond the lens look the same whatever is pressed.
-        let indices: Vec<u32> =
-            (0..dirty.len()).filter(|&i| dirty[i] && self.seen[i] == Seen::Elastomer).map(|i| i as u32).collect();
+        let indices = self.dirty_elastomer(depth_mm);
         let mut shaded = vec![[0.0; 3]; indices.len()];
         self.shade_elastomer(depth_mm, &indices, &mut shaded);
         (indices, shaded)
+    }
+
+    /// The elastomer samples (grid order) whose shading a contact `depth_mm` changes: those
+    /// pressed and the neighbours their normals read. A branch-free stencil over a padded byte
+    /// mask, so that it vectorises: scattering each pressed sample onto its neighbours took 2.1
+    /// ms a generated sample (both renderers), this 0.9 ms.
+    fn dirty_elastomer(&self, depth_mm: &[f32]) -> Vec<u32> {
+        const SELF: u8 = 1 << 4;
+        const BLOCK: usize = 64;
+        let (n, w) = (depth_mm.len(), self.grid.width as usize);
+        // mask[pad + i]: the neighbour bits sample i's normal reads if it is pressed, and SELF
+        // if it is a pressed elastomer sample. A zero border of a row and one either side keeps
+        // the stencil's reads inside.
+        let pad = w + 1;
+        let mut mask = vec![0u8; n + 2 * pad];
+        for (((m, &d), &bits), &seen) in
+            mask[pad..pad + n].iter_mut().zip(depth_mm).zip(&self.neighbours).zip(&self.seen)
+        {
+            let own = if seen == Seen::Elastomer { SELF } else { 0 };
+            *m = if d != 0.0 { bits | own } else { 0 };
+        }
+        // Sample j changes if it is pressed itself or a pressed neighbour reads it: j's right
+        // neighbour reads its left (bit 0), its left one its right (bit 1), the one below its
+        // upper (bit 2), the one above its lower (bit 3). A neighbour bit is only set towards an
+        // elastomer sample, so the housing never shows up.
+        let mut indices = Vec::new();
+        let mut dirty = [0u8; BLOCK];
+        for start in (0..n).step_by(BLOCK) {
+            let len = BLOCK.min(n - start);
+            let j0 = pad + start;
+            let at = |off: usize| &mask[off..off + len];
+            let (own, right, left, below, above) = (at(j0), at(j0 + 1), at(j0 - 1), at(j0 + w), at(j0 - w));
+            for k in 0..len {
+                dirty[k] = (own[k] & SELF) | (right[k] & 1) | (left[k] & 2) | (below[k] & 4) | (above[k] & 8);
+            }
+            if dirty[..len].iter().fold(0, |a, &d| a | d) != 0 {
+                indices.extend((0..len).filter(|&k| dirty[k] != 0).map(|k| (start + k) as u32));
+            }
+        }
+        indices
     }
 
     /// 8-bit image of a radiance on this grid (`samples`^2 samples averaged per pixel), with
@@ -342,14 +371,11 @@ impl Renderer {
             }
             let values = block[..len].as_flattened_mut();
             match (&mut noise, &self.tone) {
-                (Some(noise), None) => noise.add_quantised(values, out),
-                (None, None) => out.iter_mut().zip(values).for_each(|(o, v)| *o = quantise(*v)),
-                (noise, Some(tone)) => {
-                    if let Some(noise) = noise {
-                        noise.add(values);
-                    }
-                    out.iter_mut().zip(values).for_each(|(o, v)| *o = tone.apply(*v));
+                (Some(noise), tone) => {
+                    noise.add_finished(values, out, tone.as_ref().map_or(Finish::Round, Finish::Tone))
                 }
+                (None, None) => out.iter_mut().zip(values).for_each(|(o, v)| *o = quantise(*v)),
+                (None, Some(tone)) => out.iter_mut().zip(values).for_each(|(o, v)| *o = tone.apply(*v)),
             }
         }
         self.stream(RgbImage::from_raw(self.grid.width, self.grid.height, bytes).expect("grid size"))
@@ -482,6 +508,44 @@ mod tests {
         assert!(b[0] >= 299 && b[1] >= 199 && b[2] <= 330 && b[3] <= 220, "changed pixels in {b:?}");
     }
 
+    /// The branch-free stencil marks exactly what scattering each pressed sample onto itself and
+    /// the neighbours its normal reads marks, on blobs that cross the grid's edges, the housing
+    /// and the lens' rim, and with no contact at all.
+    #[test]
+    fn the_dirty_stencil_matches_the_scatter_form() {
+        let (_, r) = nominal();
+        let (w, h) = (r.grid().width as usize, r.grid().height as usize);
+        let scatter = |depth: &[f32]| -> Vec<u32> {
+            let mut dirty = vec![false; depth.len()];
+            for i in (0..depth.len()).filter(|&i| depth[i] != 0.0) {
+                dirty[i] = true;
+                r.neighbours_of(i).into_iter().for_each(|j| dirty[j] = true);
+            }
+            (0..depth.len()).filter(|&i| dirty[i] && r.seen[i] == Seen::Elastomer).map(|i| i as u32).collect()
+        };
+        let mut rng = formats::SplitMix64::new(7);
+        for blobs in [0, 1, 5, 40] {
+            let mut depth = vec![0f32; w * h];
+            for _ in 0..blobs {
+                let (cx, cy, rad) = (rng.below(w), rng.below(h), 1 + rng.below(60));
+                for y in cy.saturating_sub(rad)..(cy + rad).min(h) {
+                    for x in cx.saturating_sub(rad)..(cx + rad).min(w) {
+                        if rng.unit() < 0.8 {
+                            depth[y * w + x] = rng.range(0.01, 3.0) as f32;
+                        }
+                    }
+                }
+            }
+            // A pressed sample in every corner and on every edge's middle.
+            for (x, y) in [(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1), (w / 2, 0), (0, h / 2), (w - 1, h / 2)] {
+                depth[y * w + x] = 1.0;
+            }
+            let want = scatter(&depth);
+            assert_eq!(r.dirty_elastomer(&depth), want, "{blobs} blobs");
+        }
+        assert!(r.dirty_elastomer(&vec![0.0; w * h]).is_empty());
+    }
+
     /// The drape and the blur show beyond the contact's edge, as far as they reach and no farther;
     /// with a tone curve and JPEG, no contact still gives the reference image exactly.
     #[test]
@@ -539,8 +603,8 @@ mod tests {
         assert!(mean.abs() < 0.02 && (sd - 1.0).abs() < 0.08, "normalised noise mean {mean}, sd {sd}");
     }
 
-    /// The AVX2 noise kernel rounds exactly as the portable one, out of range and NaN included,
-    /// across the table's wrap-around.
+    /// The AVX2 noise kernel rounds, and looks up a tone curve, exactly as the portable one, out
+    /// of range and NaN included, across the table's wrap-around.
     #[test]
     fn simd_noise_matches_the_portable_kernel() {
         #[cfg(target_arch = "x86_64")]
@@ -554,11 +618,17 @@ mod tests {
             // Start near the table's end, so that a run wraps.
             portable.pos = NOISE_TABLE_LEN - 1001;
             simd.pos = NOISE_TABLE_LEN - 1001;
-            portable.add_quantised_portable(&values, &mut a);
-            simd.add_quantised_avx2(avx2, &values, &mut b);
+            portable.add_finished_portable(&values, &mut a, Finish::Round);
+            simd.add_finished_avx2(avx2, &values, &mut b, Finish::Round);
             assert_eq!(a, b);
             assert_eq!(portable.pos, simd.pos);
             assert!(a.contains(&0) && a.contains(&255) && a.iter().any(|&x| x > 0 && x < 255));
+            // Through a tone curve: the table's ends (0 and 255 * TONE_STEPS) included.
+            let tone = Tone::new(1.8).unwrap();
+            portable.add_finished_portable(&values, &mut a, Finish::Tone(&tone));
+            simd.add_finished_avx2(avx2, &values, &mut b, Finish::Tone(&tone));
+            assert_eq!(a, b);
+            assert!(a.contains(&0) && a.contains(&255));
         }
     }
 

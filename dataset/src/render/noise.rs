@@ -2,6 +2,7 @@
 
 use formats::SplitMix64;
 
+use super::optics::Tone;
 #[cfg(target_arch = "x86_64")]
 use crate::simd::Avx2;
 use crate::unit::SensorUnit;
@@ -11,6 +12,25 @@ use crate::unit::SensorUnit;
 #[inline(always)]
 pub(super) fn quantise(v: f32) -> u8 {
     (v.clamp(0.0, 255.0) + 0.5) as u8
+}
+
+/// How the camera turns a noisy linear grey level into its byte.
+#[derive(Clone, Copy)]
+pub(super) enum Finish<'a> {
+    /// A linear camera: rounded.
+    Round,
+    /// Through the camera's tone curve.
+    Tone(&'a Tone),
+}
+
+impl Finish<'_> {
+    #[inline(always)]
+    fn apply(self, v: f32) -> u8 {
+        match self {
+            Finish::Round => quantise(v),
+            Finish::Tone(tone) => tone.apply(v),
+        }
+    }
 }
 
 /// Length of the shared table of standard normals: more values than an 800x600 RGB frame has,
@@ -50,11 +70,11 @@ impl NoiseLevel {
         (self.read_var + self.shot_gain * v.max(0.0)).sqrt()
     }
 
-    /// The portable kernel: each value plus its normal times the noise's spread, rounded.
+    /// The portable kernel: each value plus its normal times the noise's spread, finished.
     #[inline(always)]
-    fn add_quantised(self, values: &[f32], normals: &[f32], out: &mut [u8]) {
+    fn add_finished(self, values: &[f32], normals: &[f32], out: &mut [u8], finish: Finish) {
         for ((b, &v), &z) in out.iter_mut().zip(values).zip(normals) {
-            *b = quantise(v + z * self.sigma(v));
+            *b = finish.apply(v + z * self.sigma(v));
         }
     }
 }
@@ -69,59 +89,69 @@ impl GaussianNoise {
         }
     }
 
-    /// Adds noise to interleaved RGB values and rounds them to grey levels.
-    pub(super) fn add_quantised(&mut self, values: &[f32], out: &mut [u8]) {
+    /// Adds noise to interleaved RGB values and finishes them to bytes.
+    pub(super) fn add_finished(&mut self, values: &[f32], out: &mut [u8], finish: Finish) {
         #[cfg(target_arch = "x86_64")]
         if let Some(avx2) = Avx2::detect() {
-            return self.add_quantised_avx2(avx2, values, out);
+            return self.add_finished_avx2(avx2, values, out, finish);
         }
-        self.add_quantised_portable(values, out)
+        self.add_finished_portable(values, out, finish)
     }
 
-    pub(super) fn add_quantised_portable(&mut self, values: &[f32], out: &mut [u8]) {
+    pub(super) fn add_finished_portable(&mut self, values: &[f32], out: &mut [u8], finish: Finish) {
         let level = self.level;
-        self.add_quantised_runs(values, out, |v, z, o| level.add_quantised(v, z, o))
+        self.add_finished_runs(values, out, |v, z, o| level.add_finished(v, z, o, finish))
     }
 
     /// The portable kernel's arithmetic in AVX2 intrinsics: the same bytes.
     #[cfg(target_arch = "x86_64")]
-    pub(super) fn add_quantised_avx2(&mut self, _: Avx2, values: &[f32], out: &mut [u8]) {
+    pub(super) fn add_finished_avx2(&mut self, _: Avx2, values: &[f32], out: &mut [u8], finish: Finish) {
         // SAFETY: an `Avx2` token exists only where run-time detection found AVX2.
-        unsafe { self.add_quantised_avx2_unchecked(values, out) }
+        unsafe { self.add_finished_avx2_unchecked(values, out, finish) }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn add_quantised_avx2_unchecked(&mut self, values: &[f32], out: &mut [u8]) {
+    fn add_finished_avx2_unchecked(&mut self, values: &[f32], out: &mut [u8], finish: Finish) {
         use std::arch::x86_64::*;
         let level = self.level;
         let (read_var, shot_gain) = (_mm256_set1_ps(level.read_var), _mm256_set1_ps(level.shot_gain));
         let (zero, top, half) = (_mm256_setzero_ps(), _mm256_set1_ps(255.0), _mm256_set1_ps(0.5));
-        self.add_quantised_runs(values, out, |values, normals, out| {
+        let (steps, low_byte) = (_mm256_set1_ps(super::optics::TONE_STEPS), _mm256_set1_epi32(0xff));
+        self.add_finished_runs(values, out, |values, normals, out| {
             let whole = values.len() / 8 * 8;
             for k in (0..whole).step_by(8) {
-                // SAFETY: k + 8 <= len of all three slices; unaligned loads and an 8-byte store.
+                // SAFETY: k + 8 <= len of all three slices; unaligned loads and an 8-byte store;
+                // the gather reads 4 bytes at an entry of at most 255 * TONE_STEPS, which the
+                // padded table holds.
                 unsafe {
                     let v = _mm256_loadu_ps(values.as_ptr().add(k));
                     let z = _mm256_loadu_ps(normals.as_ptr().add(k));
-                    // `sigma` and `quantise` step for step (a NaN ends as 0 either way, since
-                    // max_ps answers its second operand for one).
+                    // `sigma`, then `quantise` or `Tone::apply`, step for step (a NaN ends as
+                    // 0 either way, since max_ps answers its second operand for one).
                     let sigma =
                         _mm256_sqrt_ps(_mm256_add_ps(read_var, _mm256_mul_ps(shot_gain, _mm256_max_ps(v, zero))));
                     let noisy = _mm256_add_ps(v, _mm256_mul_ps(z, sigma));
-                    let level = _mm256_add_ps(_mm256_min_ps(_mm256_max_ps(noisy, zero), top), half);
-                    let ints = _mm256_cvttps_epi32(level);
+                    let clamped = _mm256_min_ps(_mm256_max_ps(noisy, zero), top);
+                    let ints = match finish {
+                        Finish::Round => _mm256_cvttps_epi32(_mm256_add_ps(clamped, half)),
+                        Finish::Tone(tone) => {
+                            let entry = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(clamped, steps), half));
+                            let table = tone.padded_table().as_ptr() as *const i32;
+                            _mm256_and_si256(_mm256_i32gather_epi32::<1>(table, entry), low_byte)
+                        }
+                    };
                     let words = _mm_packus_epi32(_mm256_castsi256_si128(ints), _mm256_extracti128_si256::<1>(ints));
                     _mm_storel_epi64(out.as_mut_ptr().add(k) as *mut __m128i, _mm_packus_epi16(words, words));
                 }
             }
-            level.add_quantised(&values[whole..], &normals[whole..], &mut out[whole..]);
+            level.add_finished(&values[whole..], &normals[whole..], &mut out[whole..], finish);
         })
     }
 
     /// Hands `kernel` contiguous runs of values with their normals, wrapping at the table's end.
     #[inline(always)]
-    fn add_quantised_runs(&mut self, values: &[f32], out: &mut [u8], kernel: impl Fn(&[f32], &[f32], &mut [u8])) {
+    fn add_finished_runs(&mut self, values: &[f32], out: &mut [u8], kernel: impl Fn(&[f32], &[f32], &mut [u8])) {
         self.runs(values.len(), |range, normals| kernel(&values[range.clone()], normals, &mut out[range]))
     }
 
@@ -136,16 +166,6 @@ impl GaussianNoise {
             self.pos = (self.pos + n) % NOISE_TABLE_LEN;
             done += n;
         }
-    }
-
-    /// Adds noise to linear values in place (for a camera whose tone curve follows).
-    pub(super) fn add(&mut self, values: &mut [f32]) {
-        let level = self.level;
-        self.runs(values.len(), |range, normals| {
-            for (v, &z) in values[range].iter_mut().zip(normals) {
-                *v += z * level.sigma(*v);
-            }
-        })
     }
 
     #[inline]

@@ -183,6 +183,14 @@ impl LensBlur {
     /// everywhere else): returns the first row the blur reaches and the blurred rows from there
     /// (the given ones grown by the kernel's radius, within the grid).
     pub(super) fn rows(&self, rows: &[[f32; 3]], y0: usize, width: usize, height: usize) -> (usize, Vec<[f32; 3]>) {
+        crate::simd::avx2_where_present(
+            #[inline(always)]
+            || self.rows_inline(rows, y0, width, height),
+        )
+    }
+
+    #[inline(always)]
+    fn rows_inline(&self, rows: &[[f32; 3]], y0: usize, width: usize, height: usize) -> (usize, Vec<[f32; 3]>) {
         let r = self.radius();
         let n = rows.len() / width;
         let row_len = 3 * width;
@@ -232,7 +240,10 @@ pub(super) struct Tone {
 }
 
 /// Table entries per grey level.
-const TONE_STEPS: f32 = 16.0;
+pub(super) const TONE_STEPS: f32 = 16.0;
+
+/// Bytes after the table's last entry, so that a 32-bit gather at any entry stays inside.
+const TONE_PADDING: usize = 3;
 
 impl Tone {
     /// `None` for a linear camera (gamma 1), which rounds directly.
@@ -246,8 +257,15 @@ impl Tone {
                 let v = k as f64 / TONE_STEPS as f64 / 255.0;
                 (255.0 * v.powf(1.0 / gamma)).round().clamp(0.0, 255.0) as u8
             })
+            .chain([0; TONE_PADDING])
             .collect();
         Some(Tone { table })
+    }
+
+    /// The table, entry `k` for the linear level `k / TONE_STEPS`, followed by
+    /// `TONE_PADDING` bytes that no level reads.
+    pub(super) fn padded_table(&self) -> &[u8] {
+        &self.table
     }
 
     /// One linear value to 8 bits (NaN becomes 0, as in [`super::noise::quantise`]).
