@@ -413,12 +413,15 @@ fn machine_name() -> String {
     }
 }
 
-fn section(args: &Args, rows: &[Summary], front: &[usize], scene_lines: &[String], manifest: &Manifest) -> String {
-    let test_images = manifest.samples.iter().filter(|s| s.split == Split::Test).count();
-    let mut s = format!(
-        "{SECTION_START}\n## Run time against error (issue 7)\n\nCommand:\n\n```sh\ncargo xtask bench table --presets {} --sizes {} --samples {} --epochs {} --patience {} --max-minutes {} --batch {} --seeds {} --reps {}\n```\n\n",
-        args.presets.join(","),
-        args.sizes.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(","),
+/// The command that reproduces a table: every option that shapes the rows, `--backends` only when
+/// it was given (without it the run takes every backend its build has).
+fn command_line(args: &Args) -> String {
+    let join = |v: &[String]| v.join(",");
+    let sizes: Vec<String> = args.sizes.iter().map(|s| s.to_string()).collect();
+    let mut line = format!(
+        "cargo xtask bench table --presets {} --sizes {} --samples {} --epochs {} --patience {} --max-minutes {} --batch {} --seeds {} --reps {}",
+        join(&args.presets),
+        join(&sizes),
         args.samples,
         args.epochs,
         args.patience,
@@ -426,6 +429,18 @@ fn section(args: &Args, rows: &[Summary], front: &[usize], scene_lines: &[String
         args.batch,
         args.seeds,
         args.reps
+    );
+    if let Some(backends) = &args.backends {
+        line += &format!(" --backends {}", join(backends));
+    }
+    line
+}
+
+fn section(args: &Args, rows: &[Summary], front: &[usize], scene_lines: &[String], manifest: &Manifest) -> String {
+    let test_images = manifest.samples.iter().filter(|s| s.split == Split::Test).count();
+    let mut s = format!(
+        "{SECTION_START}\n## Run time against error (issue 7)\n\nCommand:\n\n```sh\n{}\n```\n\n",
+        command_line(args)
     );
     s += &format!(
         "One dataset for every row: {} scenes of the embedded kit, simulated unit 7, one in ten lifted clear \
@@ -545,5 +560,28 @@ mod tests {
         assert!(second.contains("two") && !second.contains("one") && second.ends_with("## Later section\n"));
         assert_eq!(second.matches(SECTION_START).count(), 1);
         assert!(splice(&format!("x {SECTION_END} y {SECTION_START}"), "z").is_err());
+    }
+
+    /// The printed command, run through the parser again, gives back the table's settings.
+    #[test]
+    fn the_printed_command_parses_back_to_the_same_settings() {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            args: Args,
+        }
+        use clap::Parser;
+        for given in
+            [&["--backends", "flex,wgpu", "--presets", "tiny,compact", "--max-minutes", "6"][..], &["--sizes", "64"]]
+        {
+            let args = Cli::parse_from(std::iter::once("table").chain(given.iter().copied())).args;
+            let line = command_line(&args);
+            assert_eq!(line.contains("--backends"), args.backends.is_some(), "{line}");
+            let words = line.strip_prefix("cargo xtask bench table ").unwrap().split(' ');
+            let back = Cli::try_parse_from(std::iter::once("table").chain(words)).unwrap().args;
+            assert_eq!(command_line(&back), line);
+            assert_eq!(back.backends, args.backends);
+            assert_eq!((back.presets, back.sizes, back.max_minutes), (args.presets, args.sizes, args.max_minutes));
+        }
     }
 }
