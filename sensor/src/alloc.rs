@@ -12,12 +12,14 @@ pub fn keep_freed_memory() -> bool {
     {
         // Blocks up to 512 MiB come from the heap (DenseDepth-161's largest activations at
         // 480x640 are 72 MB: faulting in fresh pages for one took 54 ms against 10 ms reusing
-        // the heap's); up to 256 MiB of free top is kept, and the heap grows 16 MiB at a time.
+        // the heap's); the heap's free top is never handed back (-1: the programs' peaks recur,
+        // every train step frees and reallocates its 2.6 GB of activations at 480x640), and
+        // the heap grows 16 MiB at a time.
         // SAFETY: glibc documents mallopt as safe to call at any time from any thread: it only
         // sets allocator parameters, under the arena locks.
         unsafe {
             libc::mallopt(libc::M_MMAP_THRESHOLD, 512 << 20) == 1
-                && libc::mallopt(libc::M_TRIM_THRESHOLD, 256 << 20) == 1
+                && libc::mallopt(libc::M_TRIM_THRESHOLD, -1) == 1
                 && libc::mallopt(libc::M_TOP_PAD, 16 << 20) == 1
         }
     }

@@ -58,6 +58,41 @@ fn channel_planes(x: &[f32], channels: usize, plane: usize, c: usize) -> impl It
     x.chunks_exact(plane.max(1)).skip(c).step_by(channels.max(1))
 }
 
+/// Independent f32 accumulators in `lane_sums`, which the compiler keeps in vector registers.
+const LANES: usize = 16;
+/// Elements per lane summed in f32 before the partial sums move to f64: few enough that f32
+/// rounding stays near 1e-6 relative, the total then as exact as a plain f64 sum.
+const BLOCK: usize = LANES * 64;
+
+/// `sum f(a[i], b[i])` for both of `f`'s outputs, in f64. A plain f64 sum is one serial chain of
+/// dependent additions (a few cycles per element, unvectorised); this keeps the per-element work
+/// in f32 lanes and gathers each block into f64.
+#[inline(always)]
+fn lane_sums(a: &[f32], b: &[f32], f: impl Fn(f32, f32) -> [f32; 2]) -> [f64; 2] {
+    let mut total = [0.0f64; 2];
+    for (a, b) in a.chunks(BLOCK).zip(b.chunks(BLOCK)) {
+        let mut acc = [[0.0f32; LANES]; 2];
+        let (a_lanes, b_lanes) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
+        let (a_rest, b_rest) = (a_lanes.remainder(), b_lanes.remainder());
+        for (a, b) in a_lanes.zip(b_lanes) {
+            for l in 0..LANES {
+                let [p, q] = f(a[l], b[l]);
+                acc[0][l] += p;
+                acc[1][l] += q;
+            }
+        }
+        for (l, (a, b)) in a_rest.iter().zip(b_rest).enumerate() {
+            let [p, q] = f(*a, *b);
+            acc[0][l] += p;
+            acc[1][l] += q;
+        }
+        for (t, lanes) in total.iter_mut().zip(&acc) {
+            *t += lanes.iter().map(|v| *v as f64).sum::<f64>();
+        }
+    }
+    total
+}
+
 /// Per channel `(scale, shift)` with `y = x * scale + shift`, and `rstd`.
 fn affine(gamma: &[f32], beta: &[f32], stats: &[f32], epsilon: f64) -> Vec<(f32, f32, f32)> {
     let channels = gamma.len();
@@ -79,17 +114,13 @@ impl BatchNormReluBackend for Flex {
         let per_channel: Vec<(f32, f32)> = (0..channels)
             .into_par_iter()
             .map(|c| {
-                let (mut sum, mut count) = (0.0f64, 0usize);
-                for p in channel_planes(values, channels, plane, c) {
-                    sum += p.iter().map(|v| *v as f64).sum::<f64>();
-                    count += p.len();
-                }
-                let mean = sum / count.max(1) as f64;
+                let count = (values.len() / channels.max(1)).max(1) as f64;
+                let planes = || channel_planes(values, channels, plane, c);
+                let sum: f64 = planes().map(|p| lane_sums(p, p, |v, _| [v, 0.0])[0]).sum();
+                let mean = (sum / count) as f32;
                 // Centred second pass: no cancellation for large means.
-                let squares: f64 = channel_planes(values, channels, plane, c)
-                    .map(|p| p.iter().map(|v| (*v as f64 - mean).powi(2)).sum::<f64>())
-                    .sum();
-                (mean as f32, (squares / count.max(1) as f64) as f32)
+                let squares: f64 = planes().map(|p| lane_sums(p, p, |v, _| [(v - mean) * (v - mean), 0.0])[0]).sum();
+                (mean, (squares / count) as f32)
             })
             .collect();
         let (means, vars): (Vec<f32>, Vec<f32>) = per_channel.into_iter().unzip();
@@ -131,16 +162,17 @@ impl BatchNormReluGrads for Flex {
             .into_par_iter()
             .map(|c| {
                 let (scale, shift, rstd) = coefficients[c];
-                let (mut sg, mut sgx) = (0.0f64, 0.0f64);
-                for (xs, gs) in channel_planes(values, channels, plane, c).zip(channel_planes(dy, channels, plane, c)) {
-                    for (v, g) in xs.iter().zip(gs) {
-                        if v * scale + shift > 0.0 {
-                            sg += *g as f64;
-                            sgx += (*g * (v - means[c]) * rstd) as f64;
-                        }
-                    }
-                }
-                (sg, sgx)
+                let mean = means[c];
+                let [sg, sgx] = channel_planes(values, channels, plane, c)
+                    .zip(channel_planes(dy, channels, plane, c))
+                    .map(|(xs, gs)| {
+                        lane_sums(xs, gs, |v, g| {
+                            let g = if v * scale + shift > 0.0 { g } else { 0.0 };
+                            [g, g * (v - mean)]
+                        })
+                    })
+                    .fold([0.0f64; 2], |a, b| [a[0] + b[0], a[1] + b[1]]);
+                (sg, sgx * rstd as f64)
             })
             .collect();
         // Pass 2: the input gradient, plane by plane.
@@ -151,10 +183,12 @@ impl BatchNormReluGrads for Flex {
                     let c = i % channels;
                     let (scale, shift, rstd) = coefficients[c];
                     let (mean_g, mean_gx) = ((sums[c].0 / count) as f32, (sums[c].1 / count) as f32);
-                    let factor = slice(&gamma)[c] * rstd;
-                    for ((d, v), g) in out.iter_mut().zip(xs).zip(gs) {
-                        let g = if v * scale + shift > 0.0 { *g } else { 0.0 };
-                        *d = factor * (g - mean_g - (v - means[c]) * rstd * mean_gx);
+                    let (factor, mean, slope) = (slice(&gamma)[c] * rstd, means[c], rstd * mean_gx);
+                    for ((d, &v), &g) in out.iter_mut().zip(xs).zip(gs) {
+                        // A select between two loaded values, not a branch: the ReLU's mask is
+                        // unpredictable, and a branch (or a load inside one) keeps this scalar.
+                        let g = if v * scale + shift > 0.0 { g } else { 0.0 };
+                        *d = factor * (g - mean_g - (v - mean) * slope);
                     }
                 },
             );
@@ -267,16 +301,24 @@ mod tests {
     use super::*;
 
     /// Output, gradients (input, gamma, beta) and updated running statistics against Burn's
-    /// training batch norm followed by ReLU; one channel is constant (zero variance).
+    /// training batch norm followed by ReLU; one channel is constant (zero variance). Planes
+    /// shorter than one lane group, and longer than a block with a ragged end.
     #[test]
     fn fused_equals_burns_training_batch_norm_and_relu() {
+        check_against_burn(3, 5);
+        check_against_burn(37, 41);
+    }
+
+    fn check_against_burn(height: usize, width: usize) {
         let device = crate::backend::default_device().autodiff();
         let mut norm = BatchNormConfig::new(4).init(&device);
         norm.gamma = Param::from_tensor(Tensor::from_floats([1.5, -0.7, 0.3, 1.0], &device));
         norm.beta = Param::from_tensor(Tensor::from_floats([0.2, 0.1, -0.4, 0.5], &device));
-        let x = Tensor::<4>::random([2, 4, 3, 5], Distribution::Normal(1.0, 2.0), &device);
-        let x = x.slice_assign([0..2, 3..4, 0..3, 0..5], Tensor::full([2, 1, 3, 5], 0.25, &device)).require_grad();
-        let probe = Tensor::<4>::random([2, 4, 3, 5], Distribution::Normal(0.0, 1.0), &device);
+        let shape = [2, 4, height, width];
+        let x = Tensor::<4>::random(shape, Distribution::Normal(1.0, 2.0), &device);
+        let constant = Tensor::full([2, 1, height, width], 0.25, &device);
+        let x = x.slice_assign([0..2, 3..4, 0..height, 0..width], constant).require_grad();
+        let probe = Tensor::<4>::random(shape, Distribution::Normal(0.0, 1.0), &device);
         let (mine, theirs) = (norm.clone(), norm.clone());
         let y_mine = train_norm_relu(&mine, &x).expect("flex autodiff takes the fused path");
         let y_theirs = relu(theirs.forward(x.clone()));
@@ -292,6 +334,41 @@ mod tests {
         }
         for (a, b) in [(&mine.running_mean, &theirs.running_mean), (&mine.running_var, &theirs.running_var)] {
             a.value().into_data().assert_approx_eq::<f32>(&b.value().into_data(), tol);
+        }
+    }
+
+    /// Batch statistics against an f64 reference over the same values, for a channel whose mean
+    /// is 2000 standard deviations from zero (where uncentred sums lose every digit), a plain one
+    /// and one of alternating signs, over planes with a ragged end.
+    #[test]
+    fn batch_stats_keep_precision_far_from_zero() {
+        let (batch, channels, plane) = (3, 3, 2_000 + 7);
+        let mut rng = 0x2545_f491_4f6c_dd1du64;
+        let mut uniform = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut values = vec![0.0f32; batch * channels * plane];
+        for (i, v) in values.iter_mut().enumerate() {
+            let u = uniform() - 0.5;
+            *v = match (i / plane) % channels {
+                0 => 1000.0 + u,
+                1 => 3.0 * u,
+                _ => 50.0f32.copysign(if i % 2 == 0 { 1.0 } else { -1.0 }) + u,
+            };
+        }
+        let x = super::flex_tensor(values.clone(), &[batch, channels, 1, plane]);
+        let stats = <Flex as BatchNormReluBackend>::batch_stats(x);
+        let stats = slice(&stats);
+        for c in 0..channels {
+            let own: Vec<f64> = values.chunks(plane).skip(c).step_by(channels).flatten().map(|v| *v as f64).collect();
+            let mean = own.iter().sum::<f64>() / own.len() as f64;
+            let var = own.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / own.len() as f64;
+            let (got_mean, got_var) = (stats[c] as f64, stats[channels + c] as f64);
+            assert!((got_mean - mean).abs() <= 1e-6 * mean.abs().max(1.0), "channel {c}: mean {got_mean} vs {mean}");
+            assert!((got_var - var).abs() <= 1e-5 * var, "channel {c}: variance {got_var} vs {var}");
         }
     }
 
