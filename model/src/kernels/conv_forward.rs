@@ -14,6 +14,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use super::gemm_conv::{ConvShape, SharedMut, column_chunks, matmul};
+use super::winograd;
 use crate::network::Activation;
 
 /// Output positions per task when the input is gathered, and the most gathered rows (channel
@@ -49,11 +50,11 @@ impl<'a> Epilogue<'a> {
         Epilogue { scale: None, shift: bias, activation }
     }
 
-    fn is_identity(&self) -> bool {
+    pub(crate) fn is_identity(&self) -> bool {
         self.scale.is_none() && self.shift.is_none() && self.activation == Activation::Identity
     }
 
-    fn apply(&self, channel: usize, row: &mut [f32]) {
+    pub(crate) fn apply(&self, channel: usize, row: &mut [f32]) {
         let scale = self.scale.map_or(1.0, |s| s[channel]);
         let shift = self.shift.map_or(0.0, |s| s[channel]);
         match self.activation {
@@ -130,7 +131,8 @@ fn gather(
 
 /// The convolution of one image `image` ([channels_in, height, width]) with `weight`
 /// ([channels_out, channels_in, kernel, kernel]) into `out` ([channels_out, out_height *
-/// out_width]), with the prologue and epilogue. `s.batch` is ignored.
+/// out_width]), with the prologue and epilogue. `s.batch` is ignored. 3x3 "same"
+/// convolutions go through Winograd's F(2x2, 3x3), the rest through the gathered input.
 pub(crate) fn forward_image(
     image: &[f32],
     weight: &[f32],
@@ -139,6 +141,24 @@ pub(crate) fn forward_image(
     epilogue: &Epilogue,
     out: &mut [f32],
 ) {
+    let u = winograd::applies(s).then(|| winograd::transform_weight(weight, s.channels_out, s.channels_in));
+    forward_image_with(image, weight, u.as_deref(), s, prologue, epilogue, out);
+}
+
+/// `forward_image` with the Winograd-transformed weight `u` when there is one, through the
+/// gathered input otherwise (any kernel, stride and padding).
+fn forward_image_with(
+    image: &[f32],
+    weight: &[f32],
+    u: Option<&[f32]>,
+    s: &ConvShape,
+    prologue: Option<Prologue>,
+    epilogue: &Epilogue,
+    out: &mut [f32],
+) {
+    if let Some(u) = u {
+        return winograd::forward_image(image, u, s, prologue, epilogue, out);
+    }
     let (c, o, kk) = (s.channels_in, s.channels_out, s.kernel * s.kernel);
     let positions = s.out_height() * s.out_width();
     assert_eq!(image.len(), c * s.height * s.width, "conv input size");
@@ -216,8 +236,10 @@ pub(crate) fn forward_with(
     assert_eq!(x.len(), s.batch * image_len, "conv input size");
     let mut out = vec![0.0f32; s.batch * out_len];
     if image_len > 0 && out_len > 0 {
+        // The Winograd weight transform once for the batch.
+        let u = winograd::applies(s).then(|| winograd::transform_weight(weight, s.channels_out, s.channels_in));
         for (image, dst) in x.chunks_exact(image_len).zip(out.chunks_exact_mut(out_len)) {
-            forward_image(image, weight, s, prologue, epilogue, dst);
+            forward_image_with(image, weight, u.as_deref(), s, prologue, epilogue, dst);
         }
     }
     out
@@ -231,6 +253,34 @@ mod tests {
         (0..n)
             .map(|i| ((i as u32).wrapping_mul(2654435761).wrapping_add(seed) >> 8) as f32 / (1 << 24) as f32 - 0.5)
             .collect()
+    }
+
+    /// Winograd's F(2x2, 3x3) against the gathered product on the same image, prologue and
+    /// epilogue: even and odd sizes, a single pixel, a single column, and more channels than
+    /// one transformed block holds (so products accumulate over channel blocks).
+    #[test]
+    fn winograd_equals_the_gathered_product() {
+        for (channels_in, channels_out, height, width) in
+            [(3, 2, 4, 4), (5, 7, 7, 9), (2, 3, 1, 1), (4, 3, 6, 1), (300, 5, 5, 6), (16, 33, 33, 18)]
+        {
+            let s = ConvShape { batch: 1, channels_in, channels_out, height, width, kernel: 3, padding: 1, stride: 1 };
+            assert!(winograd::applies(&s));
+            let image = values(channels_in * height * width, 7);
+            let weight = values(channels_out * channels_in * 9, 8);
+            let (scale_in, shift_in) = (values(channels_in, 9), values(channels_in, 10));
+            let shift_out = values(channels_out, 11);
+            for prologue in [None, Some(Prologue { scale: &scale_in, shift: &shift_in })] {
+                let epilogue = Epilogue::bias(Some(&shift_out), Activation::Leaky(0.2));
+                let mut want = vec![f32::NAN; channels_out * height * width];
+                forward_image_with(&image, &weight, None, &s, prologue, &epilogue, &mut want);
+                let mut got = vec![f32::NAN; want.len()];
+                forward_image(&image, &weight, &s, prologue, &epilogue, &mut got);
+                let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                    assert!((g - w).abs() <= 2e-6 * scale, "{s:?} prologue {} [{i}]: {g} vs {w}", prologue.is_some());
+                }
+            }
+        }
     }
 
     #[test]

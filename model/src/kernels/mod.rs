@@ -34,6 +34,9 @@ mod gemm_conv;
 mod norm_relu;
 mod pool;
 mod upsample;
+// Matrix products through raw pointers into per-thread buffers and disjoint output rows.
+#[allow(unsafe_code)]
+mod winograd;
 
 pub(crate) use conv::conv2d_act;
 pub(crate) use norm_relu::{inference_affine, norm_relu};
