@@ -82,8 +82,9 @@ impl ConvShape {
 #[derive(Clone, Copy)]
 pub(crate) struct SharedMut(pub(crate) *mut f32);
 // SAFETY: a `SharedMut` is only made from a `&mut [f32]` that outlives the parallel loop using
-// it (`conv_forward::forward_image`), and each task writes only its own disjoint columns, so
-// sending the pointer to another thread creates no aliasing writes.
+// it (`conv_forward::forward_image`, `winograd::forward_image` and `transform_weight`), and each
+// task writes only its own disjoint columns or rows, so sending the pointer to another thread
+// creates no aliasing writes.
 unsafe impl Send for SharedMut {}
 // SAFETY: as for `Send`: shared references to it only ever copy the pointer out, and every write
 // through the copies goes to a range no other task touches.

@@ -4,7 +4,7 @@
 //! products instead of 36 multiply-adds: with the input and the weight moved into the
 //! transformed domain (`V = Bt d B`, `U = G g Gt`), the convolution over channels becomes 16
 //! matrix products `M[xi] = U[xi] * V[xi]` of 2.25x fewer flops than the gathered (im2col)
-//! product, and the output is `A^t M A`. DenseDepth's decoder is mostly such convolutions. The
+//! product, and the output is `At M A`. DenseDepth's decoder is mostly such convolutions. The
 //! transforms run over rows of tiles: input rows split into even and odd columns make each of a
 //! tile's four columns a contiguous run, so the transforms vectorise across tiles. The prologue
 //! (eval-mode batch norm + ReLU of the input) and epilogue (bias / folded batch norm, then the
@@ -174,6 +174,10 @@ pub(crate) fn forward_image(
         BUFFERS.with_borrow_mut(|(v, m)| {
             v.resize(v.len().max(16 * block * nt), 0.0);
             m.resize(m.len().max(16 * o * nt), 0.0);
+            if c == 0 {
+                // No products to write them: a convolution of nothing is zero.
+                m[..16 * o * nt].fill(0.0);
+            }
             // The task's input rows 2 * rows.start - 1 ..= 2 * rows.end, each split once.
             let mut split = vec![0.0f32; (2 * rows.len() + 2) * 2 * (tw + 1)];
             for c0 in (0..c).step_by(block) {
