@@ -7,7 +7,8 @@
 //! the network.
 //!
 //! - convolutions as large matrix products, forward (`conv_forward`) and backward
-//!   (`gemm_conv`, through a Burn backend extension in `conv`);
+//!   (`gemm_conv`, through a Burn backend extension in `conv`), 3x3 "same" ones by Winograd's
+//!   F(2x2, 3x3) (`winograd`);
 //! - a dense block's eval-mode forward in one preallocated stack (`dense_block`);
 //! - eval-mode and training-mode batch norm + ReLU in one pass (`norm_relu`, `batch_norm_train`);
 //! - the stem's max pool (`pool`) and the decoder's upsample + concatenation (`upsample`).
