@@ -111,10 +111,10 @@ impl BatchNormReluBackend for Flex {
         let x = contiguous(x);
         let (_, channels, plane) = layout(&x);
         let values = slice(&x);
+        let count = (values.len() / channels.max(1)).max(1) as f64;
         let per_channel: Vec<(f32, f32)> = (0..channels)
             .into_par_iter()
             .map(|c| {
-                let count = (values.len() / channels.max(1)).max(1) as f64;
                 let planes = || channel_planes(values, channels, plane, c);
                 let sum: f64 = planes().map(|p| lane_sums(p, p, |v, _| [v, 0.0])[0]).sum();
                 let mean = (sum / count) as f32;

@@ -141,7 +141,7 @@ pub(crate) fn forward_image(
     epilogue: &Epilogue,
     out: &mut [f32],
 ) {
-    let u = winograd::applies(s).then(|| winograd::transform_weight(weight, s.channels_out, s.channels_in));
+    let u = winograd::weight_for(s, weight);
     forward_image_with(image, weight, u.as_deref(), s, prologue, epilogue, out);
 }
 
@@ -237,7 +237,7 @@ pub(crate) fn forward_with(
     let mut out = vec![0.0f32; s.batch * out_len];
     if image_len > 0 && out_len > 0 {
         // The Winograd weight transform once for the batch.
-        let u = winograd::applies(s).then(|| winograd::transform_weight(weight, s.channels_out, s.channels_in));
+        let u = winograd::weight_for(s, weight);
         for (image, dst) in x.chunks_exact(image_len).zip(out.chunks_exact_mut(out_len)) {
             forward_image_with(image, weight, u.as_deref(), s, prologue, epilogue, dst);
         }

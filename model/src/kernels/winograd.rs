@@ -32,9 +32,15 @@ pub(crate) fn applies(s: &ConvShape) -> bool {
     s.kernel == 3 && s.stride == 1 && s.padding == 1 && s.height > 0 && s.width > 0
 }
 
+/// The transformed weight when this path computes the convolution `s`; `None` when the gathered
+/// product must (the one place that decides between them).
+pub(crate) fn weight_for(s: &ConvShape, weight: &[f32]) -> Option<Vec<f32>> {
+    applies(s).then(|| transform_weight(weight, s.channels_out, s.channels_in))
+}
+
 /// `U = G g Gt` for every (output, input) channel pair, as 16 matrices [channels_out,
 /// channels_in]: `u[xi * o * c + oc * c + ic]` with `xi = 4 * row + column`.
-pub(crate) fn transform_weight(weight: &[f32], channels_out: usize, channels_in: usize) -> Vec<f32> {
+fn transform_weight(weight: &[f32], channels_out: usize, channels_in: usize) -> Vec<f32> {
     let (o, c) = (channels_out, channels_in);
     assert_eq!(weight.len(), o * c * 9, "3x3 weight size");
     let mut u = vec![0.0f32; 16 * o * c];
@@ -150,7 +156,7 @@ fn transform_output(m: &[f32], stride: usize, n: usize, rows: [Option<&mut [f32]
 }
 
 /// The convolution of one image ([channels_in, height, width]) with `u` from
-/// `transform_weight` into `out` ([channels_out, height * width]), with the prologue and
+/// `weight_for` into `out` ([channels_out, height * width]), with the prologue and
 /// epilogue. Requires `applies(s)`.
 pub(crate) fn forward_image(
     image: &[f32],
