@@ -21,8 +21,10 @@ use formats::fs::{write_atomic, write_atomic_unsynced};
 use formats::session::{CaptureLog, reference_frame};
 use formats::write_json;
 use image::RgbImage;
-use sensor::Sensor;
-use sensor::frame::{ContactGate, check_channel_order, encode_png_rgb, read_crop};
+use rayon::prelude::*;
+use sensor::frame::{check_channel_order, encode_png_rgb, read_crop};
+use sensor::gate::GateFrame;
+use sensor::{DepthMap, Sensor};
 use serde::{Deserialize, Serialize};
 
 use crate::generate::build_scene;
@@ -52,7 +54,6 @@ pub struct Labeller<'a> {
     pub sensor: &'a Sensor,
     pub kit: &'a Kit,
     pub on_bad_row: OnBadRow,
-    pub gate: ContactGate,
 }
 
 /// What a finished labelling reports.
@@ -179,14 +180,30 @@ impl Labeller<'_> {
         for split in [Split::Train, Split::Test] {
             summary.insert(split, SplitSummary::of(samples.iter().filter(|s| s.split == split)));
         }
+        // A frame labelled untouched that differs from the reference by more than this unit's
+        // noise (a gate fitted to the labelled contact frames alone, their noise taken from
+        // their pixels far from contact) is a slip of the log.
+        let measured: Vec<(&SampleRecord, GateFrame)> = samples
+            .par_iter()
+            .map(|s| -> Result<_> {
+                let image = read_crop(&out.join(s.image.as_ref().expect("labelled records have images")), self.sensor)?;
+                let depth_path = out.join(&s.depth);
+                let depth = DepthMap::decode_png_um(&depth_path, &std::fs::read(&depth_path)?)?;
+                let contact: Vec<bool> = depth.depth_mm.iter().map(|&d| d > sensor::CONTACT_THRESHOLD_MM).collect();
+                Ok((s, GateFrame::measure(&image, &reference, &mask, &contact)))
+            })
+            .collect::<Result<_>>()?;
+        let pressed: Vec<GateFrame> = measured.iter().filter(|m| m.1.contact).map(|m| m.1.clone()).collect();
+        let gate = sensor::gate::fit(&pressed);
         let (mut no_contact, mut slips) = (Vec::new(), Vec::new());
-        for s in samples.iter().filter(|s| s.stats.contact_fraction == 0.0) {
+        for (s, frame) in measured.iter().filter(|m| !m.1.contact) {
             let capture = s.capture.as_ref().expect("labelled records carry their row");
             no_contact.push((capture.line, capture.frame.clone()));
-            let image = read_crop(&out.join(s.image.as_ref().expect("labelled records have images")), self.sensor)?;
-            let changed = self.gate.changed_pixels(&image, &reference, &mask);
-            if changed >= self.gate.min_pixels {
-                slips.push((capture.line, capture.frame.clone(), changed));
+            if let Some(gate) = gate
+                && let Some(level) = sensor::gate::GATE_LEVELS.iter().position(|&l| l == gate.grey_levels)
+                && frame.changed[level] as usize >= gate.min_pixels
+            {
+                slips.push((capture.line, capture.frame.clone(), frame.changed[level] as usize));
             }
         }
         let manifest = Manifest {

@@ -8,7 +8,7 @@ use clap::{Parser, Subcommand};
 use dataset::calibration::{CalibrationOptions, GpTarget, calibrate, compare};
 use dataset::generate::{Generator, report_lines};
 use dataset::label::{Labeller, OnBadRow};
-use dataset::session::SessionWriter;
+use dataset::session::{RendererCamera, SessionWriter};
 use dataset::{Kit, Renderer, SawTooth, SawToothShot, SensorUnit, Skipping};
 use formats::dataset::{Angles, GeneratorParams};
 use formats::fs::write_atomic;
@@ -105,6 +105,10 @@ struct CalibrateArgs {
     /// What the Gaussian process regresses on image radius.
     #[arg(long, value_enum, default_value_t = GpTarget::Theta)]
     target: GpTarget,
+    /// Refuse a frame that places the map less precisely than this (px, rms over the useful
+    /// disk, two standard deviations).
+    #[arg(long, default_value_t = dataset::calibration::DEFAULT_MAX_UNCERTAINTY_PX)]
+    max_uncertainty_px: f64,
 }
 
 #[derive(clap::Args)]
@@ -239,7 +243,8 @@ fn generate(args: GenerateArgs) -> Result<()> {
     }
     if let Some(dir) = &args.session {
         let unit = unit.as_ref().context("--session needs --unit")?;
-        let writer = SessionWriter { out: dir.clone(), kit: &kit, unit, params, jpeg_quality: args.jpeg_quality };
+        let camera = RendererCamera::new(unit, args.jpeg_quality);
+        let writer = SessionWriter { out: dir.clone(), kit: &kit, camera: &camera, params };
         let report = writer.run()?;
         println!(
             "{} frames ({} new) in {:.1} s; wrote {}",
@@ -275,7 +280,6 @@ fn label(args: LabelArgs) -> Result<()> {
         sensor: &sensor,
         kit: &kit,
         on_bad_row: args.on_bad_row,
-        gate: Default::default(),
     };
     let report = labeller.run()?;
     for line in dataset::label::report_lines(&report) {
@@ -310,6 +314,7 @@ fn run_calibration(args: CalibrateArgs) -> Result<()> {
     let inputs: Vec<&std::path::Path> = std::iter::once(args.image.as_path()).chain(args.truth.as_deref()).collect();
     formats::output::check_file(&args.out, &inputs)?;
     let img = sensor::frame::read(&args.image)?;
+    sensor::frame::check_colour(&args.image, &img)?;
     let truth = args.truth.as_deref().map(Sensor::load_json).transpose()?;
     if !(args.pitch_deg > 0.0 && args.pitch_deg * args.teeth as f64 <= 90.0) {
         bail!("--pitch-deg x --teeth must stay within 90 degrees");
@@ -318,7 +323,11 @@ fn run_calibration(args: CalibrateArgs) -> Result<()> {
         radius_mm: args.radius_mm,
         indicator: SawTooth { pitch_deg: args.pitch_deg, teeth: args.teeth, ..Default::default() },
         target: args.target,
+        max_uncertainty_px: args.max_uncertainty_px,
     };
+    if args.max_uncertainty_px.is_nan() || args.max_uncertainty_px <= 0.0 {
+        bail!("--max-uncertainty-px must be a positive number of pixels");
+    }
     let cal = calibrate(&img, &opts).with_context(|| format!("{}", args.image.display()))?;
     write_json(&args.out, &cal.sensor)?;
     let c = &cal.sensor.correspondence;
@@ -335,6 +344,14 @@ fn run_calibration(args: CalibrateArgs) -> Result<()> {
     println!(
         "predictive sd of theta over the useful disk: mean {:.4} deg, max {:.4} deg",
         cal.mean_sd_deg, cal.max_sd_deg
+    );
+    println!(
+        "rim edge {:.1} px wide, centre placed to +-{:.2} px; tooth pulses: gaussian {:.1} px, tail {:.1} px",
+        cal.rim_width_px, cal.centre_sd_px, cal.pulse_sigma_px, cal.pulse_tail_px
+    );
+    println!(
+        "uncertainty of the map: +-{:.2} px rms over the useful disk (two standard deviations)",
+        cal.uncertainty_px
     );
     if cal.patched_px > 0.0 {
         println!(

@@ -23,6 +23,7 @@ use formats::dataset::{GeneratorParams, sample_name};
 use formats::fs::{write_atomic, write_atomic_unsynced};
 use formats::session::{CAPTURES_CSV, Capture, CaptureLog};
 use formats::{SplitMix64, write_json};
+use sensor::Sensor;
 use sensor::frame::{encode_jpeg_rgb, encode_png_rgb};
 use serde::{Deserialize, Serialize};
 
@@ -40,18 +41,86 @@ pub const SIMULATION_DIR: &str = ".simulation";
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SessionSettings {
     pub params: GeneratorParams,
-    pub unit: SensorUnit,
-    /// JPEG quality of the frames; `None`: PNG.
-    pub jpeg_quality: Option<u8>,
+    /// The camera's own description ([`SessionCamera::describe`]).
+    pub camera: serde_json::Value,
+}
+
+/// The camera a simulated session is filmed with: the project's renderer
+/// ([`RendererCamera`]) or another image model written apart from it.
+pub trait SessionCamera: Sync {
+    /// The true geometry the frames are drawn with (written as `.simulation/truth.json`).
+    fn sensor(&self) -> &Sensor;
+    /// What the session's settings record of the camera: a resumed session must match it.
+    fn describe(&self) -> serde_json::Value;
+    /// The camera's full frame for a rigid depth map on the sensor's crop, as its stream
+    /// delivers it: the file extension and the bytes.
+    fn frame(&self, crop_depth_mm: &[f32], noise_seed: u64) -> (&'static str, Vec<u8>);
+    /// The frame with nothing touching the sensor.
+    fn reference(&self, noise_seed: u64) -> (&'static str, Vec<u8>);
+    /// The frame of the saw-tooth indicator pressed across the sensor, for `dataset calibrate`.
+    fn sawtooth(&self) -> (&'static str, Vec<u8>);
+}
+
+/// A simulated unit filmed through the project's renderer; frames as PNG, or as JPEG of the
+/// given quality.
+pub struct RendererCamera<'a> {
+    unit: &'a SensorUnit,
+    renderer: Renderer,
+    jpeg_quality: Option<u8>,
+}
+
+impl<'a> RendererCamera<'a> {
+    pub fn new(unit: &'a SensorUnit, jpeg_quality: Option<u8>) -> Self {
+        RendererCamera { unit, renderer: Renderer::new(unit, PixelGrid::frame(&unit.sensor, 1)), jpeg_quality }
+    }
+
+    fn encode(&self, img: &image::RgbImage) -> (&'static str, Vec<u8>) {
+        match self.jpeg_quality {
+            Some(q) => ("jpg", encode_jpeg_rgb(img, q)),
+            None => ("png", encode_png_rgb(img)),
+        }
+    }
+}
+
+impl SessionCamera for RendererCamera<'_> {
+    fn sensor(&self) -> &Sensor {
+        &self.unit.sensor
+    }
+
+    fn describe(&self) -> serde_json::Value {
+        serde_json::json!({ "unit": self.unit, "jpeg_quality": self.jpeg_quality })
+    }
+
+    fn frame(&self, crop_depth_mm: &[f32], noise_seed: u64) -> (&'static str, Vec<u8>) {
+        let sensor = &self.unit.sensor;
+        let (x0, y0) = sensor.crop_origin_px();
+        let (n, fw) = (sensor.crop_size_px as usize, sensor.frame_width_px as usize);
+        // The crop's depth in its place in the camera's frame; nothing is pressed outside it.
+        let mut frame_depth = vec![0f32; self.renderer.grid().len()];
+        for (y, row) in crop_depth_mm.chunks_exact(n).enumerate() {
+            let start = (y0 as usize + y) * fw + x0 as usize;
+            frame_depth[start..start + n].copy_from_slice(row);
+        }
+        self.encode(&self.renderer.render(&frame_depth, Some(noise_seed)))
+    }
+
+    fn reference(&self, noise_seed: u64) -> (&'static str, Vec<u8>) {
+        let img = self.renderer.render(&vec![0f32; self.renderer.grid().len()], Some(noise_seed));
+        ("png", encode_png_rgb(&img))
+    }
+
+    fn sawtooth(&self) -> (&'static str, Vec<u8>) {
+        let shot = SawToothShot { seed: self.unit.seed.unwrap_or(0), ..Default::default() };
+        ("png", encode_png_rgb(&shot.render(self.unit)))
+    }
 }
 
 /// A simulated session to write (or resume).
 pub struct SessionWriter<'a> {
     pub out: PathBuf,
     pub kit: &'a crate::Kit,
-    pub unit: &'a SensorUnit,
+    pub camera: &'a dyn SessionCamera,
     pub params: GeneratorParams,
-    pub jpeg_quality: Option<u8>,
 }
 
 /// What a finished session reports.
@@ -65,8 +134,7 @@ impl SessionWriter<'_> {
     pub fn run(&self) -> Result<SessionReport> {
         let start = Instant::now();
         let sim = self.out.join(SIMULATION_DIR);
-        let settings =
-            SessionSettings { params: self.params.clone(), unit: self.unit.clone(), jpeg_quality: self.jpeg_quality };
+        let settings = SessionSettings { params: self.params.clone(), camera: self.camera.describe() };
         let rows_dir = format!("{SIMULATION_DIR}/rows");
         let kit = std::path::Path::new(&self.kit.source);
         let inputs: Vec<&std::path::Path> = (self.kit.source != "procedural").then_some(kit).into_iter().collect();
@@ -80,14 +148,10 @@ impl SessionWriter<'_> {
             "a simulated session",
             "--session",
         )?;
-        write_json(&sim.join("truth.json"), &self.unit.sensor)?;
-        let ext = if self.jpeg_quality.is_some() { "jpg" } else { "png" };
-        let sensor = &self.unit.sensor;
-        let renderer = Renderer::new(self.unit, PixelGrid::frame(sensor, 1));
-        let encode = |img: &image::RgbImage| match self.jpeg_quality {
-            Some(q) => encode_jpeg_rgb(img, q),
-            None => encode_png_rgb(img),
-        };
+        let sensor = self.camera.sensor();
+        write_json(&sim.join("truth.json"), sensor)?;
+        // Every frame of one camera has the same extension; an empty depth map's frame tells it.
+        let (ext, _) = self.camera.frame(&vec![0f32; sensor.crop_len()], 0);
         let (out, rows) = (&self.out, sim.join("rows"));
         let done = resumable::finished(
             "frames",
@@ -98,22 +162,14 @@ impl SessionWriter<'_> {
         )?;
         let todo: Vec<u32> = (0..self.params.count).filter(|id| !done.contains_key(id)).collect();
         let rays = RayBundle::new(sensor);
-        let (x0, y0) = sensor.crop_origin_px();
-        let (n, fw) = (sensor.crop_size_px as usize, sensor.frame_width_px as usize);
         let made = resumable::make_all(&todo, "simulating frames", |id| {
             let (trial, pose) = draw_sample(self.kit, &self.params, id);
             let scene = build_scene(self.kit, trial, pose)?;
             let caster = RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On);
             let (depth, _) = caster.depth_map(sensor, &rays);
-            // The crop's depth in its place in the camera's frame; nothing is pressed outside it.
-            let mut frame_depth = vec![0f32; renderer.grid().len()];
-            for (y, row) in depth.depth_mm.chunks_exact(n).enumerate() {
-                let start = (y0 as usize + y) * fw + x0 as usize;
-                frame_depth[start..start + n].copy_from_slice(row);
-            }
-            let img = renderer.render(&frame_depth, Some(noise_seed(&self.params, id)));
+            let (_, bytes) = self.camera.frame(&depth.depth_mm, noise_seed(&self.params, id));
             let frame = format!("frames/{}.{ext}", sample_name(id));
-            write_atomic_unsynced(&self.out.join(&frame), &encode(&img))?;
+            write_atomic_unsynced(&self.out.join(&frame), &bytes)?;
             let capture =
                 Capture { line: 0, frame, split: trial.split, trial: trial.number, pose, extra: Default::default() };
             write_atomic_unsynced(
@@ -126,13 +182,12 @@ impl SessionWriter<'_> {
         let mut all = done;
         all.extend(made);
         let captures: Vec<Capture> = all.into_values().enumerate().map(|(k, c)| Capture { line: k + 2, ..c }).collect();
-        let reference =
-            renderer.render(&vec![0f32; renderer.grid().len()], Some(SplitMix64::new(self.params.seed).next_u64()));
-        write_atomic(&self.out.join("reference.png"), &encode_png_rgb(&reference))?;
-        let sawtooth = self.out.join("sawtooth.png");
+        let (ext, reference) = self.camera.reference(SplitMix64::new(self.params.seed).next_u64());
+        write_atomic(&self.out.join(format!("reference.{ext}")), &reference)?;
+        let (ext, bytes) = self.camera.sawtooth();
+        let sawtooth = self.out.join(format!("sawtooth.{ext}"));
         if !sawtooth.is_file() {
-            let shot = SawToothShot { seed: self.unit.seed.unwrap_or(0), ..Default::default() };
-            write_atomic(&sawtooth, &encode_png_rgb(&shot.render(self.unit)))?;
+            write_atomic(&sawtooth, &bytes)?;
         }
         write_atomic(&self.out.join(CAPTURES_CSV), CaptureLog::to_csv(&captures).as_bytes())?;
         Ok(SessionReport { frames: captures.len(), made: made_count, seconds: start.elapsed().as_secs_f64() })

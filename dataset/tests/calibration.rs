@@ -13,8 +13,14 @@ fn shot(seed: u64, noise_scale: f64) -> SawToothShot {
 
 fn check(unit: &SensorUnit, cal: &Calibration, what: &str) {
     let (px, deg) = compare(&cal.sensor, &unit.sensor);
-    eprintln!("{what}: rms_px {px:.3} rms_deg {deg:.4}, {} edges, missing {:?}", cal.edges.len(), cal.missing);
+    eprintln!(
+        "{what}: rms_px {px:.3} (stated +-{:.3}) rms_deg {deg:.4}, {} edges, missing {:?}",
+        cal.uncertainty_px,
+        cal.edges.len(),
+        cal.missing
+    );
     assert!(px <= MAX_RMS_PX && deg <= MAX_RMS_DEG, "{what}: rms {px:.3} px, {deg:.4} deg");
+    assert!(px <= cal.uncertainty_px, "{what}: off by {px:.3} px, more than the stated {:.3}", cal.uncertainty_px);
     let t = &unit.sensor.correspondence;
     let c = &cal.sensor.correspondence;
     assert!((c.centre_u_px - t.centre_u_px).hypot(c.centre_v_px - t.centre_v_px) < 0.2, "{what}: centre");
@@ -28,6 +34,27 @@ fn several_units_and_noise_levels_calibrate_within_goals() {
         let img = shot(seed, noise).render(&unit);
         let cal = calibrate(&img, &CalibrationOptions::default()).unwrap();
         check(&unit, &cal, &format!("unit {seed}, noise x{noise}"));
+    }
+}
+
+/// The same frame as a camera's MJPEG stream delivers it: JPEG with 4:2:0 chroma.
+fn jpeg_420(img: &image::RgbImage, quality: u8) -> image::RgbImage {
+    let mut out = Vec::new();
+    let mut enc = jpeg_encoder::Encoder::new(&mut out, quality);
+    enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_2_0);
+    enc.encode(img.as_raw(), img.width() as u16, img.height() as u16, jpeg_encoder::ColorType::Rgb).unwrap();
+    sensor::frame::decode(std::path::Path::new("sawtooth.jpg"), &out).unwrap()
+}
+
+#[test]
+fn draped_teeth_through_subsampled_jpeg_calibrate() {
+    // Units whose gel drapes 0.25 to 1 mm over each tooth's foot, as every frame they take.
+    for (seed, quality) in [(21, 75), (22, 90), (23, 95)] {
+        let unit = SensorUnit::from_seed(seed, 25.0);
+        assert!(unit.elastomer.drape_mm > 0.2, "unit {seed} drapes");
+        let img = jpeg_420(&shot(seed, 1.0).render(&unit), quality);
+        let cal = calibrate(&img, &CalibrationOptions::default()).unwrap();
+        check(&unit, &cal, &format!("unit {seed}, drape {:.2} mm, JPEG q{quality} 4:2:0", unit.elastomer.drape_mm));
     }
 }
 
@@ -69,11 +96,11 @@ fn images_without_the_indicator_fail_with_a_message() {
     // The sensor without anything pressed.
     let bare = SawToothShot { indicator: SawTooth { teeth: 0, ..Default::default() }, ..shot(7, 1.0) }.render(&unit);
     let e = calibrate(&bare, &opts).unwrap_err().to_string();
-    assert!(e.contains("tooth edges"), "{e}");
+    assert!(e.contains("saw-tooth indicator"), "{e}");
     // The indicator pressed along the image's y axis instead of x.
     let turned = image::imageops::rotate90(&shot(7, 1.0).render(&unit));
     let e = calibrate(&turned, &opts).unwrap_err().to_string();
-    assert!(e.contains("tooth edges") || e.contains("teeth"), "{e}");
+    assert!(e.contains("saw-tooth") || e.contains("teeth"), "{e}");
     // A black frame (LEDs off).
     let e = calibrate(&image::RgbImage::new(800, 600), &opts).unwrap_err().to_string();
     assert!(e.contains("no bright disk"), "{e}");

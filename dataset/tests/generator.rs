@@ -153,7 +153,7 @@ fn sawtooth_and_calibrate_commands_round_trip() {
     let out = dir.join("sensor.json");
     let r = Command::new(BIN)
         .args(["calibrate", "--image", dir.join("sawtooth.png").to_str().unwrap(), "--out", out.to_str().unwrap()])
-        .args(["--truth", dir.join("truth.json").to_str().unwrap()])
+        .args(["--truth", dir.join("truth.json").to_str().unwrap(), "--max-uncertainty-px", "1"])
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&r.stdout);
@@ -163,6 +163,15 @@ fn sawtooth_and_calibrate_commands_round_trip() {
         last.split_whitespace().find_map(|kv| kv.strip_prefix(key)).unwrap_or_else(|| panic!("{last}")).parse().unwrap()
     };
     assert!(value("rms_px=") <= 0.5 && value("rms_deg=") <= 0.1, "{last}");
+    // The uncertainty it states holds.
+    let stated: f64 = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("uncertainty of the map: +-"))
+        .and_then(|l| l.split_whitespace().next())
+        .unwrap_or_else(|| panic!("{stdout}"))
+        .parse()
+        .unwrap();
+    assert!(value("rms_px=") <= stated, "{last}; stated +-{stated}");
     let calibrated = sensor::Sensor::load_json(&out).unwrap();
     assert!(matches!(calibrated.correspondence.radial, sensor::RadialMap::Tabulated { .. }));
 

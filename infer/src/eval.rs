@@ -211,10 +211,12 @@ pub struct SplitStats {
     pub zero_boundary_l1_mm: Summary,
     /// Frames the contact gate answered without running the network.
     pub skipped_frames: usize,
+    /// Of those, frames whose ground truth has contact: answered with zeros by mistake.
+    pub gated_contact_frames: usize,
 }
 
 impl SplitStats {
-    pub fn of(images: &[ImageErrors], skipped_frames: usize) -> Self {
+    pub fn of(images: &[ImageErrors], skipped_frames: usize, gated_contact_frames: usize) -> Self {
         let s = |f: fn(&ImageErrors) -> f64| Summary::of(images.iter().map(f));
         SplitStats {
             contact_l1_mm: s(|e| e.contact_l1_mm),
@@ -225,6 +227,7 @@ impl SplitStats {
             boundary_l1_mm: s(|e| e.boundary_l1_mm),
             zero_boundary_l1_mm: s(|e| e.zero_boundary_l1_mm),
             skipped_frames,
+            gated_contact_frames,
         }
     }
 
@@ -264,7 +267,7 @@ pub fn evaluate_dataset(
     let mut groups = Vec::new();
     for &split in splits {
         let name = split.name();
-        let (mut errors, mut skipped) = (Vec::new(), 0);
+        let (mut errors, mut skipped, mut gated_contact) = (Vec::new(), 0, 0);
         let chosen: Vec<&SampleRecord> = manifest.split(Some(split)).collect();
         if chosen.is_empty() {
             anyhow::bail!("{}: the dataset has no {name} samples to evaluate", data.join("manifest.json").display());
@@ -286,15 +289,17 @@ pub fn evaluate_dataset(
             let (pred, ran) = predictor.predict_gated(&frame).with_context(|| format!("{}", image_path.display()))?;
             if !ran {
                 skipped += 1;
+                gated_contact += usize::from(truth.depth_mm.iter().any(|&d| d > sensor::CONTACT_THRESHOLD_MM));
             }
             errors.push(ImageErrors::of(id, name, &pred.depth_mm, &truth.depth_mm, &predictor.mask));
             if (k + 1) % 50 == 0 {
                 eprintln!("{name}: {}/{}", k + 1, chosen.len());
             }
         }
-        let s = SplitStats::of(&errors, skipped);
+        let s = SplitStats::of(&errors, skipped, gated_contact);
         println!(
-            "{name:5}: {} images, {}, L2 {:.5} mm^2; {skipped} frames without contact",
+            "{name:5}: {} images, {}, L2 {:.5} mm^2; {skipped} frames answered by the contact gate, {gated_contact} of \
+             them with contact",
             s.l1_mm.n,
             s.headline(),
             s.l2_mm.mean
@@ -398,9 +403,10 @@ mod tests {
 
     #[test]
     fn stat_keys_are_the_written_ones() {
-        let stats = SplitStats::of(&[ImageErrors::of(1, "test", &[0.0; 4], &[1.0; 4], &[true; 4])], 0);
+        let stats = SplitStats::of(&[ImageErrors::of(1, "test", &[0.0; 4], &[1.0; 4], &[true; 4])], 0, 0);
         let json = serde_json::to_value(&stats).unwrap();
-        let keys: Vec<&String> = json.as_object().unwrap().keys().filter(|k| *k != "skipped_frames").collect();
+        let counts = ["skipped_frames", "gated_contact_frames"];
+        let keys: Vec<&String> = json.as_object().unwrap().keys().filter(|k| !counts.contains(&k.as_str())).collect();
         assert_eq!(keys.len(), STAT_KEYS.len());
         assert!(STAT_KEYS.iter().all(|k| json[*k]["mean"].is_number() || json[*k]["n"] == 0), "{json}");
     }

@@ -23,7 +23,7 @@ pub enum InferError {
 
 /// When a frame counts as untouched: fewer than `min_pixels` useful pixels differ from the
 /// reference image by more than `grey_levels` (mean over the channels).
-pub use sensor::frame::ContactGate;
+pub use sensor::gate::ContactGate;
 
 /// A loaded bundle, ready to turn frames into depth maps.
 pub struct Predictor {
@@ -38,7 +38,9 @@ pub struct Predictor {
     pub mask: Vec<bool>,
     /// The useful pixels' rays, for point clouds.
     pub rays: Vec<sensor::PixelRay>,
-    pub gate: ContactGate,
+    /// The bundle's contact gate (fitted to its unit's frames); `None`: the network runs on
+    /// every frame.
+    pub gate: Option<ContactGate>,
     /// Frames to the network's input (with the reference difference if the model reads it).
     encoder: InputEncoder,
     /// Replaces the output pixels the masked loss never trained (not wholly on useful pixels)
@@ -66,6 +68,7 @@ impl Predictor {
         let out_hw = file.model.output_hw([file.input_height_px, file.input_width_px]);
         let trained = sensor::resample::covered_mask(&mask, file.sensor.crop_size_px as usize, out_hw);
         let border_fill = sensor::resample::FillPlan::new(&trained, out_hw);
+        let gate = file.contact_gate.as_ref().map(|g| g.gate);
         let mut predictor = Predictor {
             dir: dir.to_path_buf(),
             net: net.folded(),
@@ -74,7 +77,7 @@ impl Predictor {
             reference: None,
             mask,
             rays,
-            gate: ContactGate::default(),
+            gate,
             encoder,
             border_fill,
             tare_mm: None,
@@ -109,10 +112,10 @@ impl Predictor {
     }
 
     /// Whether `frame` differs from the unit's reference by more than noise (always true
-    /// without a reference image).
+    /// without a reference image or a gate).
     pub fn has_contact(&self, frame: &RgbImage) -> bool {
-        let Some(reference) = &self.reference else { return true };
-        self.gate.differs(frame, reference, &self.mask)
+        let (Some(reference), Some(gate)) = (&self.reference, &self.gate) else { return true };
+        gate.differs(frame, reference, &self.mask)
     }
 
     /// Reads a camera frame for this bundle's unit: PNG or JPEG, the camera's full frame (cut to

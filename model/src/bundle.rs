@@ -60,6 +60,19 @@ pub struct BundleFile {
     /// `--torch-names`). Inference reads the burnpack file, which this does not touch.
     #[serde(default)]
     pub safetensors_keys: SafetensorsKeys,
+    /// The contact gate fitted to the unit's labelled frames, with what it does on each split;
+    /// `None` (imported or older bundles, datasets without a reference frame): no gate, the
+    /// network runs on every frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_gate: Option<GateRecord>,
+}
+
+/// A bundle's contact gate and its tally on the training data's splits.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GateRecord {
+    pub gate: sensor::gate::ContactGate,
+    pub train: sensor::gate::Tally,
+    pub test: sensor::gate::Tally,
 }
 
 /// The key names of a bundle's `weights.safetensors`.
@@ -134,6 +147,7 @@ impl BundleFile {
             training: None,
             weights_sha256: BTreeMap::new(),
             safetensors_keys: SafetensorsKeys::Burn,
+            contact_gate: None,
         }
     }
 

@@ -3,19 +3,22 @@
 //!
 //! Every command that takes a frame reads it here, so they all accept the same frames and
 //! refuse the same ones with the same words:
+//! - a damaged file refused (a truncated JPEG or PNG, a failed checksum, bytes after the image's
+//!   end), an EXIF orientation applied (`crate::decode`);
 //! - 8-bit RGB as it is; 16-bit RGB scaled to 8 bits; an alpha channel dropped;
-//! - a greyscale frame (or an RGB one whose three channels are equal) refused: the sensor's
-//!   colours encode the direction of the surface's slope, so depth needs all three;
 //! - the camera's full frame cropped around the sensor's optical centre; the crop itself taken
 //!   as it is; any other size refused with both expected sizes;
+//! - a greyscale frame (or an RGB one whose three channels are equal) refused, after its size:
+//!   the sensor's colours encode the direction of the surface's slope, so depth needs all three;
 //! - against the unit's reference frame, a frame whose red and blue match the reference's blue
 //!   and red (a BGR frame, OpenCV's order) refused with that diagnosis.
 
 use std::path::{Path, PathBuf};
 
-use image::{DynamicImage, RgbImage};
+use image::RgbImage;
 
 use crate::Sensor;
+use crate::decode::Damage;
 
 /// Why a frame cannot be used; each names the file.
 #[derive(Debug, thiserror::Error)]
@@ -43,28 +46,28 @@ pub enum FrameError {
     ReferenceSize { path: PathBuf, width: u32, height: u32, crop: u32 },
 }
 
-/// Decodes a frame's bytes (PNG or JPEG, by content) to 8-bit RGB; `path` names it in errors.
+/// Decodes a frame's bytes (PNG or JPEG, by content) to 8-bit RGB, refusing a damaged file
+/// (`crate::decode`) and applying an EXIF orientation; `path` names it in errors. Whether the
+/// frame has the sensor's size and is in colour is checked by [`crop`] and [`read_reference`],
+/// size first.
 pub fn decode(path: &Path, bytes: &[u8]) -> Result<RgbImage, FrameError> {
-    let bad = |message: String| FrameError::Decode { path: path.to_path_buf(), message };
-    let format = image::guess_format(bytes).map_err(|e| bad(e.to_string()))?;
-    if !matches!(format, image::ImageFormat::Png | image::ImageFormat::Jpeg) {
-        return Err(bad(format!("{format:?} files are not read; save the frame as PNG or JPEG")));
-    }
-    let img = image::load_from_memory_with_format(bytes, format).map_err(|e| bad(e.to_string()))?;
-    let grey = |what: &str| FrameError::Grey { path: path.to_path_buf(), what: what.to_string() };
-    let rgb = match img {
-        DynamicImage::ImageLuma8(_) | DynamicImage::ImageLuma16(_) => return Err(grey("one channel")),
-        DynamicImage::ImageLumaA8(_) | DynamicImage::ImageLumaA16(_) => return Err(grey("one channel and alpha")),
-        DynamicImage::ImageRgb8(rgb) => rgb,
-        other => other.to_rgb8(),
-    };
+    let rgb = crate::decode::decode_rgb(bytes).map_err(|damage| match damage {
+        Damage::Unreadable(message) => FrameError::Decode { path: path.to_path_buf(), message },
+        Damage::Grey(what) => FrameError::Grey { path: path.to_path_buf(), what: what.to_string() },
+    })?;
     if rgb.width() == 0 || rgb.height() == 0 {
-        return Err(bad("the image is empty".into()));
-    }
-    if rgb.pixels().all(|p| p.0[0] == p.0[1] && p.0[1] == p.0[2]) {
-        return Err(grey("its three channels are equal"));
+        return Err(FrameError::Decode { path: path.to_path_buf(), message: "the image is empty".into() });
     }
     Ok(rgb)
+}
+
+/// Refuses an RGB frame whose three channels are equal everywhere: a greyscale picture saved as
+/// RGB, from which the surface's slope cannot be read.
+pub fn check_colour(path: &Path, img: &RgbImage) -> Result<(), FrameError> {
+    if img.pixels().all(|p| p.0[0] == p.0[1] && p.0[1] == p.0[2]) {
+        return Err(FrameError::Grey { path: path.to_path_buf(), what: "its three channels are equal".into() });
+    }
+    Ok(())
 }
 
 /// Reads and decodes a frame file.
@@ -81,6 +84,7 @@ pub fn read_reference(path: &Path, crop: u32) -> Result<RgbImage, FrameError> {
         let (width, height) = img.dimensions();
         return Err(FrameError::ReferenceSize { path: path.to_path_buf(), width, height, crop });
     }
+    check_colour(path, &img)?;
     Ok(img)
 }
 
@@ -90,12 +94,15 @@ pub fn crop(path: &Path, img: RgbImage, sensor: &Sensor) -> Result<RgbImage, Fra
     let (w, h) = img.dimensions();
     let n = sensor.crop_size_px;
     if (w, h) == (n, n) {
+        check_colour(path, &img)?;
         return Ok(img);
     }
     if (w, h) == (sensor.frame_width_px, sensor.frame_height_px) {
         let (x0, y0) = sensor.crop_origin_px();
         // `Sensor::validate` keeps the crop inside the frame.
-        return Ok(image::imageops::crop_imm(&img, x0 as u32, y0 as u32, n, n).to_image());
+        let crop = image::imageops::crop_imm(&img, x0 as u32, y0 as u32, n, n).to_image();
+        check_colour(path, &crop)?;
+        return Ok(crop);
     }
     Err(FrameError::Size {
         path: path.to_path_buf(),
@@ -143,47 +150,6 @@ pub fn check_channel_order(
     Ok(())
 }
 
-/// When a frame counts as differing from the unit's reference frame: at least `min_pixels`
-/// useful pixels whose channels differ by more than `grey_levels` on average. Shared by the
-/// inference gate and the labelling checks.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ContactGate {
-    pub grey_levels: f32,
-    pub min_pixels: usize,
-}
-
-impl Default for ContactGate {
-    /// About 4 to 5 standard deviations of a simulated unit's noise at mid-grey, and a patch of
-    /// 200 pixels (0.08 % of the disk): noise alone almost never reaches both.
-    fn default() -> Self {
-        ContactGate { grey_levels: 15.0, min_pixels: 200 }
-    }
-}
-
-impl ContactGate {
-    /// Useful pixels of `frame` that differ from `reference` by more than the gate's grey
-    /// levels, counted up to `min_pixels` (the count stops there: enough to decide).
-    pub fn changed_pixels(&self, frame: &RgbImage, reference: &RgbImage, mask: &[bool]) -> usize {
-        let limit = self.grey_levels * 3.0;
-        let mut changed = 0;
-        for ((p, q), &useful) in frame.pixels().zip(reference.pixels()).zip(mask) {
-            let diff: f32 = (0..3).map(|c| (p.0[c] as f32 - q.0[c] as f32).abs()).sum();
-            if useful && diff > limit {
-                changed += 1;
-                if changed >= self.min_pixels {
-                    break;
-                }
-            }
-        }
-        changed
-    }
-
-    /// Whether `frame` differs from `reference` by more than noise.
-    pub fn differs(&self, frame: &RgbImage, reference: &RgbImage, mask: &[bool]) -> bool {
-        self.changed_pixels(frame, reference, mask) >= self.min_pixels
-    }
-}
-
 /// Encodes an RGB image as PNG, with fast compression: camera frames are noisy and barely
 /// compress, and a generator or a frame loop writes many.
 pub fn encode_png_rgb(img: &RgbImage) -> Vec<u8> {
@@ -211,6 +177,8 @@ pub fn encode_jpeg_rgb(img: &RgbImage, quality: u8) -> Vec<u8> {
 
 #[cfg(test)]
 mod tests {
+    use image::DynamicImage;
+
     use super::*;
 
     fn png(img: DynamicImage) -> Vec<u8> {
@@ -245,7 +213,7 @@ mod tests {
         let e = decode(p, &png(DynamicImage::ImageLuma8(grey.clone()))).unwrap_err().to_string();
         assert!(e.contains("cam/f.png") && e.contains("greyscale"), "{e}");
         let as_rgb = DynamicImage::ImageLuma8(grey).to_rgb8();
-        let e = decode(p, &png(DynamicImage::ImageRgb8(as_rgb))).unwrap_err().to_string();
+        let e = check_colour(p, &as_rgb).unwrap_err().to_string();
         assert!(e.contains("greyscale") && e.contains("equal"), "{e}");
         let e = decode(p, b"GIF89a not a frame").unwrap_err().to_string();
         assert!(e.contains("cam/f.png") && e.contains("PNG or JPEG"), "{e}");
@@ -268,5 +236,95 @@ mod tests {
         assert_eq!(super::crop(Path::new("f.png"), crop.clone(), &sensor).unwrap(), crop);
         let e = super::crop(Path::new("f.png"), pattern(640, 480), &sensor).unwrap_err().to_string();
         assert!(e.contains("640x480") && e.contains("800x600") && e.contains("570x570"), "{e}");
+        // A 1x1 frame is refused for its size, not as greyscale (its one pixel's channels may
+        // well be equal).
+        let one = RgbImage::from_pixel(1, 1, image::Rgb([7, 7, 7]));
+        let e = super::crop(Path::new("f.png"), one, &sensor).unwrap_err().to_string();
+        assert!(e.contains("1x1") && e.contains("800x600") && !e.contains("greyscale"), "{e}");
+    }
+
+    /// A JPEG of a colourful frame (4:2:0, as cameras stream).
+    fn jpeg(img: &RgbImage) -> Vec<u8> {
+        let mut out = Vec::new();
+        let mut enc = jpeg_encoder::Encoder::new(&mut out, 90);
+        enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_2_0);
+        enc.encode(img.as_raw(), img.width() as u16, img.height() as u16, jpeg_encoder::ColorType::Rgb).unwrap();
+        out
+    }
+
+    #[test]
+    fn truncated_or_damaged_files_are_refused_not_filled_in() {
+        let p = Path::new("cam/f.jpg");
+        let img = pattern(96, 64);
+        let good = jpeg(&img);
+        assert!(decode(p, &good).is_ok());
+        // Cut as a killed capture program leaves it: at several places, with and without the
+        // last bytes.
+        for keep in [good.len() / 20, good.len() / 2, good.len() - 2, good.len() - 1] {
+            let e = decode(p, &good[..keep]).unwrap_err().to_string();
+            assert!(e.contains("cam/f.jpg") && e.contains("truncated"), "cut to {keep}: {e}");
+        }
+        // Bytes after the end beyond the slack: two files joined.
+        let mut joined = good.clone();
+        joined.extend_from_slice(&good);
+        let e = decode(p, &joined).unwrap_err().to_string();
+        assert!(e.contains("follow"), "{e}");
+        let mut padded = good.clone();
+        padded.extend_from_slice(&[0u8; 16]);
+        assert!(decode(p, &padded).is_ok(), "a little padding after the end is allowed");
+
+        let p = Path::new("cam/f.png");
+        let good = png(DynamicImage::ImageRgb8(img));
+        assert!(decode(p, &good).is_ok());
+        for keep in [40, good.len() / 2, good.len() - 12, good.len() - 1] {
+            let e = decode(p, &good[..keep]).unwrap_err().to_string();
+            assert!(e.contains("cam/f.png") && e.contains("truncated"), "cut to {keep}: {e}");
+        }
+        // A flipped bit in the pixel data: the chunk's CRC (or the zlib checksum) fails.
+        let idat = good.windows(4).position(|w| w == b"IDAT").unwrap();
+        let mut flipped = good.clone();
+        flipped[idat + 20] ^= 0x10;
+        assert!(decode(p, &flipped).is_err(), "a damaged PNG is refused");
+        let mut joined = good.clone();
+        joined.extend_from_slice(&good);
+        assert!(decode(p, &joined).unwrap_err().to_string().contains("follow"));
+    }
+
+    /// `bytes` with an APP1 EXIF segment saying `orientation`, after the SOI marker.
+    fn with_exif_orientation(bytes: &[u8], orientation: u16) -> Vec<u8> {
+        let mut tiff = b"II*\0\x08\0\0\0".to_vec();
+        tiff.extend_from_slice(&1u16.to_le_bytes());
+        tiff.extend_from_slice(&0x0112u16.to_le_bytes());
+        tiff.extend_from_slice(&3u16.to_le_bytes());
+        tiff.extend_from_slice(&1u32.to_le_bytes());
+        tiff.extend_from_slice(&orientation.to_le_bytes());
+        tiff.extend_from_slice(&[0, 0, 0, 0, 0, 0]);
+        let mut app1 = b"Exif\0\0".to_vec();
+        app1.extend_from_slice(&tiff);
+        let mut out = bytes[..2].to_vec();
+        out.extend_from_slice(&[0xff, 0xe1]);
+        out.extend_from_slice(&((app1.len() + 2) as u16).to_be_bytes());
+        out.extend_from_slice(&app1);
+        out.extend_from_slice(&bytes[2..]);
+        out
+    }
+
+    #[test]
+    fn an_exif_orientation_is_applied() {
+        let p = Path::new("f.jpg");
+        // Left half bright red, right half dark blue: a rotation moves them.
+        let img = RgbImage::from_fn(
+            64,
+            32,
+            |x, _| if x < 32 { image::Rgb([230, 20, 20]) } else { image::Rgb([10, 10, 120]) },
+        );
+        let plain = decode(p, &jpeg(&img)).unwrap();
+        assert_eq!(plain.dimensions(), (64, 32));
+        // Orientation 6: shown rotated 90 degrees clockwise.
+        let turned = decode(p, &with_exif_orientation(&jpeg(&img), 6)).unwrap();
+        assert_eq!(turned.dimensions(), (32, 64), "rotated by the EXIF orientation");
+        assert!(turned.get_pixel(16, 8).0[0] > 150 && turned.get_pixel(16, 56).0[2] > 80, "red on top after the turn");
+        // Orientation 1 changes nothing.
+        assert_eq!(decode(p, &with_exif_orientation(&jpeg(&img), 1)).unwrap(), plain);
     }
 }

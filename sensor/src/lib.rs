@@ -9,8 +9,10 @@
 #[allow(unsafe_code)] // mallopt
 pub mod alloc;
 mod correspondence;
+mod decode;
 mod depth;
 pub mod frame;
+pub mod gate;
 pub mod resample;
 mod sensor;
 pub mod shared;
@@ -18,6 +20,7 @@ pub mod shared;
 use std::path::{Path, PathBuf};
 
 pub use correspondence::{Correspondence, RadialMap};
+pub use decode::TRAILING_SLACK_BYTES;
 pub use depth::{CONTACT_THRESHOLD_MM, DepthMap, PNG_UM_PER_STEP};
 pub use sensor::{DEFAULT_FOCAL_PX_PER_RAD, MAX_FRAME_SIDE_PX, PixelRay, SENSOR_FORMAT_VERSION, Sensor};
 

@@ -81,8 +81,15 @@ pub fn export_net_with(
             )
         }
     };
+    let skip_bad = state.config.on_bad_data == crate::OnBadData::Skip;
+    let contact_gate = crate::gate::fit_gate(&state.config.data, skip_bad)?;
+    match &contact_gate {
+        Some(record) => crate::gate::report_lines(record).iter().for_each(|l| println!("{l}")),
+        None => println!("no contact gate: the dataset has no reference frame or no train frame with contact"),
+    }
     let file = BundleFile {
         safetensors_keys: keys,
+        contact_gate,
         training: Some(TrainingRecord::Trained(Trained {
             data: state.config.data.clone(),
             epochs: state.epoch,

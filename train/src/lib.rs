@@ -8,10 +8,13 @@ mod config;
 pub mod data;
 pub mod export;
 mod fit;
+pub mod gate;
 mod loader;
 pub mod parallel;
+mod recipe;
 
 pub use config::{FitConfig, OnBadData, Schedule, SettingError};
 pub use fit::{Evaluation, Fitted, RunOptions, Start, fit, fit_on, fit_with, optimizer, permutation, select, validate};
 pub use formats::training::EpochMetrics;
 pub use loader::{BatchLoader, DecodedBatch};
+pub use recipe::{Recipe, RecipeNetwork};

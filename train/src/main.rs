@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use train::data::DepthDataset;
-use train::{FitConfig, OnBadData, RunOptions, Schedule, Start, fit_with};
+use train::{FitConfig, OnBadData, Recipe, RunOptions, Schedule, Start, fit_with};
 
 #[derive(Parser)]
 #[command(name = "train", version, about = "Train DenseDepth for DenseTact sensors")]
@@ -76,12 +76,15 @@ struct Common {
     /// Run folder: checkpoints, metrics.csv, metrics.json.
     #[arg(long)]
     out: PathBuf,
-    #[arg(long, default_value_t = 10)]
-    epochs: usize,
-    #[arg(long, default_value_t = 4)]
-    batch: usize,
-    #[arg(long, default_value_t = 1e-4)]
-    lr: f64,
+    /// Epochs (default: the recipe's; fine-tuning: 10).
+    #[arg(long)]
+    epochs: Option<usize>,
+    /// Batch size (default: the recipe's; fine-tuning: 4).
+    #[arg(long)]
+    batch: Option<usize>,
+    /// Peak learning rate (default: the recipe's; fine-tuning: 1e-4).
+    #[arg(long)]
+    lr: Option<f64>,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// flex (the CPU), wgpu (the default adapter), wgpu:N (the N-th discrete GPU), cuda or
@@ -107,20 +110,22 @@ struct Common {
     /// Train on this fraction of the training split (a seeded subset).
     #[arg(long, default_value_t = 1.0)]
     train_fraction: f64,
-    /// Learning-rate schedule after the warm-up: constant or cosine (down to 1 % at the end).
-    #[arg(long, value_enum, default_value_t = Schedule::Constant)]
-    schedule: Schedule,
-    /// Steps over which the learning rate ramps up from zero.
-    #[arg(long, default_value_t = 0)]
-    warmup_steps: u64,
+    /// Learning-rate schedule after the warm-up: constant or cosine (down to 1 % at the end)
+    /// (default: the recipe's; fine-tuning: constant).
+    #[arg(long, value_enum)]
+    schedule: Option<Schedule>,
+    /// Steps over which the learning rate ramps up from zero (default: the recipe's;
+    /// fine-tuning: 0).
+    #[arg(long)]
+    warmup_steps: Option<u64>,
     /// Fraction of the training samples held out to validate each epoch and keep the best
-    /// epoch's model (0: validate on the test split, keep the last epoch).
-    #[arg(long, default_value_t = 0.1)]
-    val_fraction: f64,
+    /// epoch's model (0: validate on the test split, keep the last epoch; default 0.1).
+    #[arg(long)]
+    val_fraction: Option<f64>,
     /// Weight of an extra L1 term over contact pixels in the training loss (0: DenseDepth's
-    /// loss).
-    #[arg(long, default_value_t = 0.0)]
-    contact_weight: f64,
+    /// loss; default: the recipe's; fine-tuning: 0).
+    #[arg(long)]
+    contact_weight: Option<f64>,
     /// Vary each training sample's look as units differ (colour gains, a tone exponent; frame
     /// and reference alike): for a base model trained with --more-data.
     #[arg(long)]
@@ -143,30 +148,45 @@ struct Common {
 struct FitArgs {
     #[command(flatten)]
     common: Common,
-    /// tiny, compact, densenet121, densenet161, densenet169, densenet201.
-    #[arg(long, default_value = "compact")]
-    preset: String,
-    /// Network input, HxW (each side at least 29, any size); the square crop is resized to it.
-    #[arg(long, default_value = "256x256", value_parser = parse_hw)]
-    input: [usize; 2],
-    /// What the network reads: `rgb` (the paper's) or `rgb-difference` (RGB and its difference to
-    /// the dataset's `unit/reference.png`, which a bundle then carries).
-    #[arg(long, default_value = "rgb", value_parser = model::InputChannels::by_name)]
-    channels: model::InputChannels,
-    /// Output at the input's resolution (a fifth decoder block whose skip is the input)
-    /// instead of DenseDepth's half.
+    /// What every setting not given defaults to: `quickstart` (the best measured: the compact
+    /// preset at 128x128 reading RGB and its reference difference, full-resolution output, unit
+    /// depth units, lr 1e-3 cosine with 100 warm-up steps, 14 epochs, contact weight 5) or
+    /// `paper` (DenseNet-161 at 480x640 on RGB, half-resolution output, the paper's units and
+    /// loss, lr 1e-4, 16 epochs).
+    #[arg(long, value_enum, default_value_t = Recipe::Quickstart)]
+    recipe: Recipe,
+    /// tiny, compact, small, medium, densenet121, densenet161, densenet169, densenet201
+    /// (default: the recipe's).
     #[arg(long)]
+    preset: Option<String>,
+    /// Network input, HxW (each side at least 29, any size); the square crop is resized to it
+    /// (default: the recipe's).
+    #[arg(long, value_parser = parse_hw)]
+    input: Option<[usize; 2]>,
+    /// What the network reads: `rgb` (the paper's) or `rgb-difference` (RGB and its difference to
+    /// the dataset's `unit/reference.png`, which a bundle then carries) (default: the recipe's).
+    #[arg(long, value_parser = model::InputChannels::by_name)]
+    channels: Option<model::InputChannels>,
+    /// Output at the input's resolution (a fifth decoder block whose skip is the input).
+    #[arg(long, conflicts_with = "half_resolution")]
     full_resolution: bool,
+    /// Output at half the input's resolution (DenseDepth's).
+    #[arg(long)]
+    half_resolution: bool,
     /// Depth in network units: `paper` (0..max depth -> 10..1000, as the paper trained) or
-    /// `unit` (0.01..1, reached in far fewer steps when training from scratch).
-    #[arg(long, value_enum, default_value_t = DepthUnits::Paper)]
-    depth_units: DepthUnits,
+    /// `unit` (0.01..1, reached in far fewer steps when training from scratch) (default: the
+    /// recipe's).
+    #[arg(long, value_enum)]
+    depth_units: Option<DepthUnits>,
     /// A torchvision DenseNet checkpoint (ImageNet) to start the encoder from.
     #[arg(long)]
     encoder_weights: Option<PathBuf>,
     /// Bundle folder to write at the end.
     #[arg(long)]
     bundle: Option<PathBuf>,
+    /// Print the settings and network the run would use (JSON) and stop.
+    #[arg(long)]
+    dry_run: bool,
 }
 
 #[derive(clap::Args)]
@@ -184,7 +204,7 @@ struct FinetuneArgs {
     bundle: Option<PathBuf>,
 }
 
-#[derive(Clone, Copy, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
 enum DepthUnits {
     Paper,
     Unit,
@@ -217,25 +237,32 @@ fn options(c: &Common) -> Result<RunOptions> {
     Ok(RunOptions { devices, resume: c.resume, loader_workers: c.loader_workers, inject_nan_step: c.inject_nan_step })
 }
 
-/// The run's settings, checked before any work.
-fn config(c: &Common, input_hw: [usize; 2], net_range: [f32; 2], freeze_encoder: bool) -> Result<FitConfig> {
+/// The run's settings: `base` (a recipe's, or fine-tuning's) with every flag given over it,
+/// checked before any work.
+fn config(
+    c: &Common,
+    base: FitConfig,
+    input_hw: [usize; 2],
+    net_range: [f32; 2],
+    freeze_encoder: bool,
+) -> Result<FitConfig> {
     let config = FitConfig {
         data: c.data.clone(),
         input_hw,
         net_range,
-        schedule: c.schedule,
-        warmup_steps: c.warmup_steps,
-        val_fraction: c.val_fraction,
-        epochs: c.epochs,
-        batch: c.batch,
-        lr: c.lr,
+        schedule: c.schedule.unwrap_or(base.schedule),
+        warmup_steps: c.warmup_steps.unwrap_or(base.warmup_steps),
+        val_fraction: c.val_fraction.unwrap_or(base.val_fraction),
+        epochs: c.epochs.unwrap_or(base.epochs),
+        batch: c.batch.unwrap_or(base.batch),
+        lr: c.lr.unwrap_or(base.lr),
         seed: c.seed,
         checkpoint_every: c.checkpoint_every,
         on_bad_data: c.on_bad_data,
         max_bad_steps: c.max_bad_steps,
         freeze_encoder,
         train_fraction: c.train_fraction,
-        contact_weight: c.contact_weight,
+        contact_weight: c.contact_weight.unwrap_or(base.contact_weight),
         patience: c.patience,
         max_minutes: c.max_minutes,
         more_data: c.more_data.clone(),
@@ -253,26 +280,49 @@ fn check_bundle(bundle: &Option<PathBuf>, inputs: &[&std::path::Path]) -> Result
     Ok(())
 }
 
+/// `train fit`'s settings and network: its recipe's, with every flag given over them.
+fn fit_settings(args: &FitArgs) -> Result<(FitConfig, model::DenseDepthConfig)> {
+    let recipe = args.recipe.network();
+    let base = args.recipe.fit_config(args.common.data.clone());
+    let input = args.input.unwrap_or(recipe.input_hw);
+    let net_range = args.depth_units.map_or(base.net_range, DepthUnits::net_range);
+    let cfg = config(&args.common, base, input, net_range, false)?;
+    let preset = args.preset.as_deref().unwrap_or(recipe.preset);
+    let full_resolution = match (args.full_resolution, args.half_resolution) {
+        (true, _) => true,
+        (_, true) => false,
+        _ => recipe.full_resolution,
+    };
+    let model_config =
+        model::DenseDepthConfig::new(model::DenseNetConfig::by_name(preset).map_err(anyhow::Error::msg)?)
+            .with_input(args.channels.unwrap_or(recipe.channels))
+            .with_full_resolution(full_resolution);
+    Ok((cfg, model_config))
+}
+
 fn run_fit(args: FitArgs) -> Result<()> {
+    if args.dry_run {
+        let (cfg, model) = fit_settings(&args)?;
+        println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "fit": cfg, "model": model }))?);
+        return Ok(());
+    }
     let mut inputs: Vec<&std::path::Path> = vec![&args.common.data, &args.common.out];
     inputs.extend(args.common.more_data.iter().map(|p| p.as_path()));
     check_bundle(&args.bundle, &inputs)?;
-    let cfg = config(&args.common, args.input, args.depth_units.net_range(), false)?;
-    let model_config =
-        model::DenseDepthConfig::new(model::DenseNetConfig::by_name(&args.preset).map_err(anyhow::Error::msg)?)
-            .with_input(args.channels)
-            .with_full_resolution(args.full_resolution);
+    let (cfg, model_config) = fit_settings(&args)?;
+    let preset = args.preset.clone().unwrap_or_else(|| args.recipe.network().preset.to_string());
+    let channels = model_config.input;
     let options = options(&args.common)?;
     let dev = options.devices[0].clone();
     let weights = match &args.encoder_weights {
         Some(path) => {
             let imported = model::import::load_pytorch(path, &dev)?;
             if imported.config.encoder != model_config.encoder {
-                bail!("{}: its DenseNet is not the {} preset", path.display(), args.preset);
+                bail!("{}: its DenseNet is not the {preset} preset", path.display());
             }
             let mut net = model_config.init(&dev);
             // Extra input channels start at zero weight: the network begins as the RGB one.
-            net.encoder = imported.model.encoder.with_input_channels(args.channels.count());
+            net.encoder = imported.model.encoder.with_input_channels(channels.count());
             Some(net)
         }
         None => None,
@@ -294,7 +344,8 @@ fn run_finetune(args: FinetuneArgs) -> Result<()> {
     let input = [file.input_height_px, file.input_width_px];
     // The bundle's depth units: the network's output layer was trained to them.
     let net_range = [file.depth_scale.net_min, file.depth_scale.net_max];
-    let cfg = config(&args.common, input, net_range, args.freeze_encoder)?;
+    let cfg =
+        config(&args.common, FitConfig::new(args.common.data.clone(), input), input, net_range, args.freeze_encoder)?;
     let data = DepthDataset::open(&cfg.data, None, input)?;
     if (data.sensor.radius_mm - file.sensor.radius_mm).abs() > 1e-9 {
         bail!("{}: the dataset's sensor radius differs from the bundle's", cfg.data.display());

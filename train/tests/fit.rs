@@ -32,8 +32,9 @@ fn tiny_start() -> Start {
 
 fn fit_args(data: &Path, out: &Path) -> Vec<String> {
     let s = |p: &Path| p.to_str().unwrap().to_string();
-    ["fit", "--data", &s(data), "--out", &s(out), "--preset", "tiny", "--input", "64x64", "--epochs", "3"]
+    ["fit", "--data", &s(data), "--out", &s(out), "--recipe", "paper", "--preset", "tiny", "--input", "64x64"]
         .iter()
+        .chain(&["--epochs", "3"])
         .map(|a| a.to_string())
         .chain(["--batch", "2", "--lr", "3e-3", "--seed", "5", "--checkpoint-every", "2"].map(String::from))
         .collect()
@@ -54,6 +55,32 @@ fn predictions(bundle: &Path) -> Vec<f32> {
     let values: Vec<f32> = (0..2 * 3 * 64 * 64).map(|i| ((i * 7919) % 1000) as f32 / 1000.0).collect();
     let x = Tensor::<4>::from_data(burn::tensor::TensorData::new(values, [2, 3, 64, 64]), &device);
     net.forward(x).into_data().try_to_vec::<f32>().unwrap()
+}
+
+/// `train fit --dry-run`'s settings and network, as JSON.
+fn dry_run(extra: &[&str]) -> serde_json::Value {
+    let r = Command::new(BIN).args(["fit", "--data", "d", "--out", "r", "--dry-run"]).args(extra).output().unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    serde_json::from_slice(&r.stdout).unwrap()
+}
+
+#[test]
+fn the_cli_trains_the_quickstarts_recipe_unless_told_otherwise() {
+    fn json(v: &impl serde::Serialize) -> serde_json::Value {
+        serde_json::to_value(v).unwrap()
+    }
+    for (flags, recipe) in [(&[][..], train::Recipe::Quickstart), (&["--recipe", "paper"][..], train::Recipe::Paper)] {
+        let printed = dry_run(flags);
+        assert_eq!(printed["fit"], json(&recipe.fit_config("d".into())), "{recipe:?}");
+        assert_eq!(printed["model"], json(&recipe.model_config().unwrap()), "{recipe:?}");
+    }
+    // A flag given wins over the recipe's value; the rest stay the recipe's.
+    let printed = dry_run(&["--epochs", "3", "--half-resolution", "--channels", "rgb"]);
+    let quickstart = train::Recipe::Quickstart.fit_config("d".into());
+    assert_eq!(printed["fit"]["epochs"], 3);
+    assert_eq!(printed["fit"]["lr"], quickstart.lr);
+    assert_eq!(printed["model"]["full_resolution"], false);
+    assert_eq!(printed["model"]["input"], json(&model::InputChannels::Rgb));
 }
 
 #[test]

@@ -31,7 +31,8 @@ fn ok(r: &Output) -> String {
 /// `train fit` on `data` into `out` with the tiny preset, one epoch by default, and `extra`.
 fn fit(data: &Path, out: &Path, extra: &[&str]) -> Output {
     let (data, out) = (s(data), s(out));
-    let mut args = vec!["fit", "--data", &data, "--out", &out, "--preset", "tiny", "--input", "64x64"];
+    let mut args =
+        vec!["fit", "--data", &data, "--out", &out, "--recipe", "paper", "--preset", "tiny", "--input", "64x64"];
     args.extend(["--epochs", "1", "--batch", "2", "--lr", "3e-3", "--checkpoint-every", "2"]);
     let mut args: Vec<String> = args.into_iter().map(String::from).collect();
     // `extra` overrides the flags above (a flag followed by its value) or adds to them.
@@ -207,7 +208,8 @@ fn a_cpu_resume_loads_no_gpu_runtime() {
     let loader_lines = |extra: &[&str]| {
         let mut cmd = Command::new(BIN);
         let (d, o) = (s(&data), s(&run));
-        cmd.args(["fit", "--data", &d, "--out", &o, "--preset", "tiny", "--input", "64x64", "--epochs", "1"]);
+        cmd.args(["fit", "--data", &d, "--out", &o, "--recipe", "paper", "--preset", "tiny", "--input", "64x64"]);
+        cmd.args(["--epochs", "1"]);
         cmd.args(["--batch", "2", "--lr", "3e-3", "--checkpoint-every", "2"]).args(extra);
         let r = cmd.env("VK_LOADER_DEBUG", "error,warn,info").env_remove("BURN_DEVICE").output().unwrap();
         assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));

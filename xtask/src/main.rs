@@ -1,7 +1,9 @@
 //! Project automation: `cargo xtask quickstart` (the README's main command) and the benchmarks
 //! (`cargo xtask bench ...`).
 
+mod bench_calibrate;
 mod bench_finetune;
+mod bench_foreign;
 mod bench_loader;
 mod bench_model;
 mod bench_raycast;
@@ -44,6 +46,12 @@ enum Bench {
     Model(bench_model::Args),
     /// Simulated unit images: time per stage of a sample; saw-tooth calibration time and error.
     Render(bench_render::Args),
+    /// Saw-tooth calibration over many units of the project's renderer or of the independent
+    /// image model: calibrated, refused (why), error against the truth and the stated bound.
+    Calibrate(bench_calibrate::Args),
+    /// The README's real-sensor commands on a session filmed by the independent image model,
+    /// beside the same scenes through the project's renderer.
+    Foreign(bench_foreign::Args),
     /// Run time against error: every preset and input size, same training budget, each backend;
     /// writes its section of BENCHMARKS.md and an SVG scatter.
     Table(bench_table::Args),
@@ -61,6 +69,8 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Raycast(args) } => bench_raycast::run(args),
         Command::Bench { what: Bench::Model(args) } => bench_model::run(args),
         Command::Bench { what: Bench::Render(args) } => bench_render::run(args),
+        Command::Bench { what: Bench::Calibrate(args) } => bench_calibrate::run(args),
+        Command::Bench { what: Bench::Foreign(args) } => bench_foreign::run(args),
         Command::Bench { what: Bench::Finetune(args) } => bench_finetune::run(args),
         Command::Bench { what: Bench::Loader(args) } => bench_loader::run(args),
         Command::Bench { what: Bench::Table(args) } => bench_table::run(args),

@@ -14,7 +14,7 @@ use formats::dataset::{GeneratorParams, Manifest};
 use infer::eval::{CONTACT_THRESHOLD_MM, SplitStats};
 use infer::{Predictor, write_ply};
 use model::{DenseDepthConfig, DenseNetConfig};
-use train::{FitConfig, Schedule, Start, fit};
+use train::{FitConfig, Recipe, Start, fit};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -67,12 +67,25 @@ const CONTACT_GOAL_MM: f64 = 0.20;
 /// And over all useful pixels.
 const USEFUL_GOAL_MM: f64 = 0.08;
 
+/// A path for recipe settings that do not depend on the dataset.
+fn out_of_band() -> std::path::PathBuf {
+    std::path::PathBuf::new()
+}
+
 pub fn run(args: Args) -> Result<()> {
     let started = Instant::now();
     let plan = if args.smoke {
         Plan { samples: 16, epochs: 1, preset: "tiny", input: 64, batch: 2, examples: 2 }
     } else {
-        Plan { samples: 1000, epochs: 14, preset: "compact", input: 128, batch: 4, examples: 4 }
+        let (net, fit) = (Recipe::Quickstart.network(), Recipe::Quickstart.fit_config(out_of_band()));
+        Plan {
+            samples: 1000,
+            epochs: fit.epochs,
+            preset: net.preset,
+            input: net.input_hw[0],
+            batch: fit.batch,
+            examples: 4,
+        }
     };
     let plan =
         Plan { samples: args.samples.unwrap_or(plan.samples), epochs: args.epochs.unwrap_or(plan.epochs), ..plan };
@@ -150,22 +163,10 @@ fn train_seed(
     fit(run_dir, &config, start, device, true).context("training (run again to resume)")
 }
 
-/// The quickstart's training recipe on `data` at `input` px square: 14 epochs at batch 4, Adam
-/// peaking at 1e-3 after 100 warm-up steps, a cosine schedule, depth in 0.01..1 units, the best
-/// epoch on 10 % held out, contact weight 5.
+/// The quickstart's training recipe on `data` at `input` px square: `train fit`'s default
+/// recipe (`train::Recipe::Quickstart`), the same settings whatever the input size.
 pub fn recipe(data: &Path, input: usize) -> FitConfig {
-    FitConfig {
-        epochs: 14,
-        batch: 4,
-        lr: 1e-3,
-        checkpoint_every: 50,
-        net_range: model::UNIT_NET_RANGE,
-        schedule: Schedule::Cosine,
-        warmup_steps: 100,
-        val_fraction: 0.1,
-        contact_weight: 5.0,
-        ..FitConfig::new(data.to_path_buf(), [input, input])
-    }
+    FitConfig { input_hw: [input, input], ..Recipe::Quickstart.fit_config(data.to_path_buf()) }
 }
 
 /// The quickstart's network: `preset` reading RGB and its difference to the unit's reference,
@@ -408,6 +409,27 @@ fn print_summary(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The quickstart trains `train fit`'s default recipe: the same settings (at its input
+    /// size) and, with its default flags, the same network.
+    #[test]
+    fn the_quickstart_trains_the_clis_default_recipe() {
+        let data = Path::new("d");
+        let cli = Recipe::Quickstart;
+        assert_eq!(recipe(data, cli.network().input_hw[0]), cli.fit_config(data.to_path_buf()));
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            args: Args,
+        }
+        let args = <Cli as clap::Parser>::try_parse_from(["quickstart"]).unwrap().args;
+        let quickstart = network(cli.network().preset)
+            .unwrap()
+            .with_input(args.channels)
+            .with_full_resolution(!args.half_resolution);
+        assert_eq!(quickstart, cli.model_config().unwrap());
+        assert_eq!(args.contact_weight, cli.fit_config(data.to_path_buf()).contact_weight);
+    }
 
     /// `cargo xtask quickstart --smoke` end to end; `run` itself checks that its outputs exist
     /// and parse. A second run resumes every stage and gives the same statistics.

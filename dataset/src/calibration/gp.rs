@@ -48,8 +48,9 @@ fn kernel(h: &Hyper, a: f64, b: f64) -> f64 {
     h.signal_sd * h.signal_sd * (-0.5 * d * d).exp()
 }
 
-/// Cholesky factor of `K + noise^2 I`, adding jitter (relative to the diagonal) until it works.
-fn factor(xs: &[f64], h: &Hyper) -> Option<Cholesky<f64, Dyn>> {
+/// Cholesky factor of `K + noise^2 I + diag(extra)`, adding jitter (relative to the diagonal)
+/// until it works.
+fn factor(xs: &[f64], extra: &[f64], h: &Hyper) -> Option<Cholesky<f64, Dyn>> {
     let n = xs.len();
     let base = DMatrix::from_fn(n, n, |i, j| kernel(h, xs[i], xs[j]));
     let diag = h.signal_sd * h.signal_sd + h.noise_sd * h.noise_sd;
@@ -57,7 +58,7 @@ fn factor(xs: &[f64], h: &Hyper) -> Option<Cholesky<f64, Dyn>> {
     for _ in 0..8 {
         let mut k = base.clone();
         for i in 0..n {
-            k[(i, i)] += h.noise_sd * h.noise_sd + jitter;
+            k[(i, i)] += h.noise_sd * h.noise_sd + extra[i] + jitter;
         }
         if let Some(c) = Cholesky::new(k) {
             return Some(c);
@@ -68,8 +69,13 @@ fn factor(xs: &[f64], h: &Hyper) -> Option<Cholesky<f64, Dyn>> {
 }
 
 /// Log marginal likelihood of `ys` under `h`, with the factor and `alpha = K^-1 y`.
-fn evidence(xs: &[f64], ys: &DVector<f64>, h: &Hyper) -> Option<(f64, Cholesky<f64, Dyn>, DVector<f64>)> {
-    let chol = factor(xs, h)?;
+fn evidence(
+    xs: &[f64],
+    extra: &[f64],
+    ys: &DVector<f64>,
+    h: &Hyper,
+) -> Option<(f64, Cholesky<f64, Dyn>, DVector<f64>)> {
+    let chol = factor(xs, extra, h)?;
     let alpha = chol.solve(ys);
     let log_det: f64 = chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>() * 2.0;
     let n = xs.len() as f64;
@@ -82,7 +88,13 @@ impl Gp {
     /// (a coarse grid, then coordinate refinement in log space). `min_noise` bounds the noise
     /// from below, in the targets' units.
     pub fn fit(x: &[f64], y: &[f64], min_noise: f64) -> Result<Gp, GpError> {
-        if x.len() < 3 || x.len() != y.len() {
+        Gp::fit_with_noise(x, y, &vec![0.0; x.len()], min_noise)
+    }
+
+    /// [`Gp::fit`] with a known noise standard deviation of each point on top of the fitted
+    /// common one (in the targets' units): a point measured less precisely pulls less.
+    pub fn fit_with_noise(x: &[f64], y: &[f64], point_sd: &[f64], min_noise: f64) -> Result<Gp, GpError> {
+        if x.len() < 3 || x.len() != y.len() || point_sd.len() != x.len() {
             return Err(GpError::TooFew(x.len().min(y.len())));
         }
         if let Some(i) = x.iter().zip(y).position(|(a, b)| !a.is_finite() || !b.is_finite()) {
@@ -100,8 +112,9 @@ impl Gp {
         let y_scale = if spread > 1e-12 * slope.abs().max(1e-300) { spread } else { 1.0 };
         let ys = DVector::from_iterator(resid.len(), resid.iter().map(|r| r / y_scale));
         let noise_floor = (min_noise / y_scale).max(1e-6);
+        let extra: Vec<f64> = point_sd.iter().map(|sd| (sd / y_scale).powi(2)).collect();
 
-        let score = |h: &Hyper| evidence(&xs, &ys, h).map_or(f64::NEG_INFINITY, |e| e.0);
+        let score = |h: &Hyper| evidence(&xs, &extra, &ys, h).map_or(f64::NEG_INFINITY, |e| e.0);
         let mut best = Hyper { signal_sd: 1.0, length: 0.3, noise_sd: noise_floor.max(0.1) };
         let mut best_ll = score(&best);
         for &s in &[0.3, 1.0, 3.0, 10.0] {
@@ -137,7 +150,7 @@ impl Gp {
                 step /= 2.0;
             }
         }
-        let (log_likelihood, chol, alpha) = evidence(&xs, &ys, &best).ok_or(GpError::Singular)?;
+        let (log_likelihood, chol, alpha) = evidence(&xs, &extra, &ys, &best).ok_or(GpError::Singular)?;
         Ok(Gp { x_scale, slope, y_scale, xs, alpha, chol, hyper: best, log_likelihood })
     }
 

@@ -1,28 +1,37 @@
 //! Fisheye calibration from one image of the saw-tooth indicator, as in the paper (a real
-//! camera frame or a simulated one).
+//! camera frame or a simulated one). It reads what a real gel shows, not what a renderer draws:
+//! every step below works on smoothed, draped, blurred, gamma-encoded, noisy and chroma-
+//! subsampled frames, and is tested on frames of an image model written apart from the
+//! project's renderer (the `gelcam` crate).
 //!
-//! 1. The optical centre: the elastomer's rim (90 degrees) is a circle about it. Canny finds the
-//!    rim roughly; radial profiles refine it to sub-pixel points; a trimmed circle fit gives the
-//!    centre and the rim's radius.
-//! 2. Tooth edges: the indicator lies along the image row through the centre. Each tooth's drop
-//!    is a thin line across that row; Canny (on each colour channel) gates the candidates and a
-//!    ridge filter on the row's median profile places them to a fraction of a pixel.
-//! 3. Matching: edges are assigned to teeth (multiples of the pitch) by a radial model that is
-//!    refitted as edges are accepted, so a hidden tooth leaves a gap and a speck is dropped
-//!    instead of shifting every later tooth.
-//! 4. A Gaussian process maps image radius to theta (or, as the paper writes it, to
-//!    `R sin(theta)`), through the centre (0, 0), every matched edge and the rim.
+//! 1. The optical centre: the elastomer's rim (90 degrees) is a circle about it. On 720 radial
+//!    rays a logistic edge (light times coverage over what lies beyond) places the rim, soft or
+//!    sharp; a robust circle through those points gives the centre and radius, and circles
+//!    through half the rim say how far a badly lit stretch may have pulled it (`rim`).
+//! 2. The radial map, roughly: the one under which the strip's colour profile repeats best
+//!    from tooth to tooth (`fold`).
+//! 3. Each drop's pulse, to a fraction of a pixel: a pulse shape shared by all teeth, fitted
+//!    window by window (`tooth_fit`); a hidden tooth explains nothing and is left out.
+//! 4. Each side's pulses registered to the drops: a lens's map is odd in theta, so a side's
+//!    constant offset (the lighting's doing) is told apart from the map (`teeth::register`).
+//! 5. A Gaussian process maps image radius to theta (or, as the paper writes it, to
+//!    `R sin(theta)`), through the centre (0, 0), every drop and the rim, the rim weighted by
+//!    its sharpness (`table`).
 //!
-//! Every stage checks its result and fails with a message rather than return a wrong map.
+//! Every stage checks its result and fails with a message rather than return a wrong map, and
+//! the result states its uncertainty; a frame that places the map less well than asked is
+//! refused with what limits it.
 
-use image::{GrayImage, RgbImage};
+use image::RgbImage;
 use sensor::Sensor;
 
+mod fold;
 pub mod gp;
 mod rim;
 pub mod sawtooth;
 mod table;
 mod teeth;
+mod tooth_fit;
 
 use sawtooth::SawTooth;
 
@@ -40,11 +49,27 @@ pub struct CalibrationOptions {
     pub radius_mm: f64,
     pub indicator: SawTooth,
     pub target: GpTarget,
+    /// Refuse a frame that places the map less precisely than this (px, rms over the useful
+    /// disk, two standard deviations).
+    pub max_uncertainty_px: f64,
 }
+
+/// What no estimate here sees (the lens beyond an odd polynomial, shading that changes along the
+/// strip), as a standard deviation in pixels: the spread of 40 simulated units' errors about
+/// their other terms.
+const UNMODELLED_SD_PX: f64 = 0.1;
+
+/// The project's goal for a calibration: 0.5 px rms over the useful disk.
+pub const DEFAULT_MAX_UNCERTAINTY_PX: f64 = 0.5;
 
 impl Default for CalibrationOptions {
     fn default() -> Self {
-        CalibrationOptions { radius_mm: 25.0, indicator: SawTooth::default(), target: GpTarget::Theta }
+        CalibrationOptions {
+            radius_mm: 25.0,
+            indicator: SawTooth::default(),
+            target: GpTarget::Theta,
+            max_uncertainty_px: DEFAULT_MAX_UNCERTAINTY_PX,
+        }
     }
 }
 
@@ -76,6 +101,17 @@ pub struct Calibration {
     /// Pixels of radius below the rim where theta was interpolated, not taken from the GP
     /// (only with the `R sin(theta)` target, where its inverse stops rising).
     pub patched_px: f64,
+    /// The pulse each drop draws, as the tooth fit found it: its Gaussian and its outward tail
+    /// (px; a tail is what a one-sided drape draws).
+    pub pulse_sigma_px: f64,
+    pub pulse_tail_px: f64,
+    /// Width (10 to 90 %) of the rim's fall (px).
+    pub rim_width_px: f64,
+    /// How far the optical centre from the rim may be off (px): its spread over half-circles.
+    pub centre_sd_px: f64,
+    /// How far off the map may be (px, rms over the useful disk, two standard deviations of
+    /// what moves it): the centre, the teeth's registration, the regression.
+    pub uncertainty_px: f64,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -84,6 +120,26 @@ pub struct CalibrationError(pub String);
 
 pub(super) fn fail<T>(why: impl Into<String>) -> Result<T, CalibrationError> {
     Err(CalibrationError(why.into()))
+}
+
+/// Least-squares residual of `rhs` on `rows` (each of `K` entries): the sum of squares left and
+/// the solution, or `None` where the system is singular.
+pub(super) fn least_squares<const K: usize>(rows: &[[f64; K]], rhs: &[f64]) -> Option<(f64, [f64; K])> {
+    let mut ata = nalgebra::SMatrix::<f64, K, K>::zeros();
+    let mut atb = nalgebra::SVector::<f64, K>::zeros();
+    let mut bb = 0.0;
+    for (row, &y) in rows.iter().zip(rhs) {
+        let r = nalgebra::SVector::<f64, K>::from_row_slice(row);
+        ata += r * r.transpose();
+        atb += r * y;
+        bb += y * y;
+    }
+    let ridge = 1e-9 * ata.trace() / K as f64;
+    for i in 0..K {
+        ata[(i, i)] += ridge;
+    }
+    let x = ata.cholesky()?.solve(&atb);
+    Some(((bb - x.dot(&atb)).max(0.0), std::array::from_fn(|i| x[i])))
 }
 
 /// One colour channel as floats, with bilinear sampling.
@@ -114,11 +170,6 @@ impl Plane {
         let bottom = p(x0, y0 + 1) * (1.0 - fx) + p(x0 + 1, y0 + 1) * fx;
         top * (1.0 - fy) + bottom * fy
     }
-
-    pub(super) fn gray(&self) -> GrayImage {
-        let px = self.v.iter().map(|&x| x.round().clamp(0.0, 255.0) as u8).collect();
-        GrayImage::from_raw(self.w as u32, self.h as u32, px).expect("plane size")
-    }
 }
 
 /// Calibrates from an RGB camera frame of the pressed saw-tooth indicator.
@@ -130,9 +181,11 @@ pub fn calibrate(img: &RgbImage, opts: &CalibrationOptions) -> Result<Calibratio
     let channels: Vec<Plane> = (0..3).map(|c| Plane::of(img, Some(c))).collect();
     let rim = rim::find_rim(&gray)?;
     let (uc, vc, r_rim) = rim.circle;
-    let candidates = teeth::find_tooth_edges(&channels, uc, vc, r_rim, &opts.indicator)?;
-    let pitch = opts.indicator.pitch_deg.to_radians();
-    let edges = teeth::match_edges(&candidates, r_rim, pitch, opts.indicator.teeth)?;
+    let ind = &opts.indicator;
+    let profile = teeth::StripProfile::read(&channels, uc, vc, r_rim)?;
+    let map = fold::fold_map(&profile, r_rim, ind.pitch_deg, ind.teeth)?;
+    let (edges, pulse_sigma_px, pulse_tail_px, offsets_sd) =
+        teeth::locate_teeth(&profile, &map, r_rim, rim.radius_sd_px(), ind)?;
 
     let table::Fit { sensor, edges, fit_rms_px, sds, patched_px } =
         table::fit(edges, &rim, opts, (img.width(), img.height()))?;
@@ -145,6 +198,22 @@ pub fn calibrate(img: &RgbImage, opts: &CalibrationOptions) -> Result<Calibratio
         }
     }
     let to_deg = |v: f64| v.to_degrees();
+    let mean_sd_deg = to_deg(sds.iter().sum::<f64>() / sds.len().max(1) as f64);
+    // What can move the map, as standard deviations in pixels: the optical centre, each side's
+    // registration of the pulses, and the regression through the drops. Stated at two of them.
+    let offset_sd = (0.5 * (offsets_sd[0].powi(2) + offsets_sd[1].powi(2))).sqrt();
+    let gp_px = mean_sd_deg * r_rim / 90.0;
+    let uncertainty_px =
+        2.0 * (rim.centre_sd_px.powi(2) + offset_sd.powi(2) + gp_px.powi(2) + UNMODELLED_SD_PX.powi(2)).sqrt();
+    if !(uncertainty_px <= opts.max_uncertainty_px) {
+        return fail(format!(
+            "the frame places the fisheye only to +-{uncertainty_px:.2} px (two standard deviations; the optical \
+             centre from the rim +-{:.2}, the teeth's registration +-{offset_sd:.2}, the map between the teeth \
+             +-{gp_px:.2}), more than the {:.2} px asked for: light the rim evenly (its edge is {:.0} px wide), \
+             press the indicator flat along the row through the centre, or allow more with --max-uncertainty-px",
+            rim.centre_sd_px, opts.max_uncertainty_px, rim.width_px
+        ));
+    }
     Ok(Calibration {
         sensor,
         rim_radius_px: r_rim,
@@ -153,8 +222,13 @@ pub fn calibrate(img: &RgbImage, opts: &CalibrationOptions) -> Result<Calibratio
         missing,
         fit_rms_px,
         max_sd_deg: to_deg(sds.iter().copied().fold(0.0, f64::max)),
-        mean_sd_deg: to_deg(sds.iter().sum::<f64>() / sds.len().max(1) as f64),
+        mean_sd_deg,
         patched_px,
+        pulse_sigma_px,
+        pulse_tail_px,
+        rim_width_px: rim.width_px,
+        centre_sd_px: rim.centre_sd_px,
+        uncertainty_px,
     })
 }
 

@@ -113,10 +113,6 @@ impl SawToothShot {
         let mut noisy = unit.clone();
         noisy.camera.read_noise *= self.noise_scale;
         noisy.camera.shot_gain *= self.noise_scale * self.noise_scale;
-        // The tooth-edge detector looks for the thin line a sharp drop draws; a gel's drape
-        // widens it into a band it does not yet read. Until it does, the shot is taken with the
-        // membrane following the teeth (lens blur, tone curve and JPEG stay the unit's).
-        noisy.elastomer.drape_mm = 0.0;
         let renderer = Renderer::new(&noisy, PixelGrid::frame(&unit.sensor, self.samples));
         let depth = self.indicator.depth_on(&renderer);
         let (radiance, _) = renderer.radiance(&depth);

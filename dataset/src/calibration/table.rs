@@ -39,7 +39,15 @@ pub(super) fn fit(
         GpTarget::Theta => thetas.clone(),
         GpTarget::RSinTheta => thetas.iter().map(|t| radius_mm * t.sin()).collect(),
     };
-    let gp = Gp::fit(&xs, &ys, 1e-6).map_err(|e| CalibrationError(format!("regression: {e}")))?;
+    // The rim is placed less precisely the softer it is (a tenth of its fall's width, 0.3 px at
+    // least): it pulls the map less than the teeth beside it.
+    let rim_theta_sd = rim.radius_sd_px() * std::f64::consts::FRAC_PI_2 / r_rim;
+    let mut point_sd = vec![0.0; ys.len()];
+    point_sd[ys.len() - 1] = match opts.target {
+        GpTarget::Theta => rim_theta_sd,
+        GpTarget::RSinTheta => radius_mm * rim_theta_sd * rim_theta_sd / 2.0,
+    };
+    let gp = Gp::fit_with_noise(&xs, &ys, &point_sd, 1e-6).map_err(|e| CalibrationError(format!("regression: {e}")))?;
     let theta_at = |r: f64| -> (f64, f64) {
         let (m, sd) = gp.predict(r);
         match opts.target {

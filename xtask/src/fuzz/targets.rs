@@ -5,13 +5,13 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use dataset::generate::generate_with_unit;
-use dataset::session::SessionWriter;
+use dataset::session::{RendererCamera, SessionWriter};
 use dataset::{Kit, LoadOptions, Mesh, SensorUnit};
 use formats::dataset::{GeneratorParams, Manifest};
 use formats::session::CaptureLog;
 use model::bundle::BundleFile;
 use model::{DenseDepthConfig, DenseNetConfig};
-use sensor::frame::ContactGate;
+use sensor::gate::ContactGate;
 use sensor::{DepthMap, RadialMap, Sensor};
 
 use super::{Check, Outcome, Shape, Target};
@@ -33,12 +33,12 @@ pub fn build_targets(work: &Path, kit: Option<&Path>) -> Result<Vec<Target>> {
     let params = GeneratorParams { test_fraction: 0.25, ..GeneratorParams::new(5, 12, &procedural.source) };
     let report = generate_with_unit(&data, &procedural, 3, 25.0, params)?;
     let session = work.join("session");
+    let camera = RendererCamera::new(&unit, Some(90));
     let writer = SessionWriter {
         out: session.clone(),
         kit: &procedural,
-        unit: &unit,
+        camera: &camera,
         params: GeneratorParams::new(5, 3, &procedural.source),
-        jpeg_quality: Some(90),
     };
     writer.run()?;
     let run = work.join("run");
@@ -81,7 +81,8 @@ pub fn build_targets(work: &Path, kit: Option<&Path>) -> Result<Vec<Target>> {
         sensor::frame::decode(Path::new("reference"), &reference_png)?,
         &unit.sensor,
     )?;
-    let frame_check = frame_check(unit.sensor.clone(), reference);
+    let frame_seeds: Vec<Vec<u8>> = [vec![reference_png.clone()], crop_frames.clone(), jpegs.clone()].concat();
+    let frame_check = frame_check(unit.sensor.clone(), reference, frame_seeds);
     Ok(vec![
         Target {
             name: "mesh-stl",
@@ -282,21 +283,33 @@ fn log_check(path: &Path, bytes: &[u8]) -> Outcome {
 }
 
 /// A frame through everything a command does with it: decode, crop, the channel-order check
-/// against the unit's reference, the contact gate.
-fn frame_check(sensor: Sensor, reference: image::RgbImage) -> Check {
+/// against the unit's reference, the contact gate. A frame that decodes must be whole: the
+/// start of one of the real files `seeds` (a copy cut short), or one with bytes appended beyond
+/// the slack, is a failure if accepted.
+fn frame_check(sensor: Sensor, reference: image::RgbImage, seeds: Vec<Vec<u8>>) -> Check {
     let mask = sensor.valid_mask();
     Arc::new(move |path: &Path, bytes: &[u8]| {
         let crop = match sensor::frame::decode(path, bytes).and_then(|img| sensor::frame::crop(path, img, &sensor)) {
             Ok(c) => c,
             Err(e) => return refused(e),
         };
+        if let Some(seed) = seeds.iter().find(|s| s.len() > bytes.len() && s.starts_with(bytes)) {
+            return Outcome::Invalid(format!(
+                "the first {} of a {}-byte frame's bytes were accepted",
+                bytes.len(),
+                seed.len()
+            ));
+        }
+        if seeds.iter().any(|s| bytes.len() > s.len() + sensor::TRAILING_SLACK_BYTES && bytes.starts_with(s)) {
+            return Outcome::Invalid(format!("a frame with {} bytes appended was accepted", bytes.len()));
+        }
         if crop.dimensions() != (sensor.crop_size_px, sensor.crop_size_px) {
             return Outcome::Invalid(format!("a crop of {:?}", crop.dimensions()));
         }
         if let Err(e) = sensor::frame::check_channel_order(path, &crop, &reference, &mask) {
             return refused(e);
         }
-        let _ = ContactGate::default().differs(&crop, &reference, &mask);
+        let _ = ContactGate { grey_levels: 15.0, min_pixels: 200 }.differs(&crop, &reference, &mask);
         Outcome::Accepted
     })
 }

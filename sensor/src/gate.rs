@@ -1,0 +1,267 @@
+//! The contact gate: whether a frame differs from the unit's reference frame by more than the
+//! unit's noise, so that an untouched frame is answered with zeros without running the network.
+//!
+//! A fixed threshold is tuned to one renderer's noise and one way of shading a contact; a real
+//! unit's noise, compression and lighting differ, and a gate that closes on a pressed frame
+//! answers it with zeros. So the gate is fitted to each unit's own labelled frames
+//! ([`fit`]): the untouched ones (and the parts of pressed ones far from their contact) say how
+//! many pixels noise alone pushes over each level; the pressed ones, how many their contact
+//! pushes over it at least. The level that separates the two best is chosen, and the pixel
+//! count is set so that no labelled contact frame is missed ([`Tally`] counts what it does).
+
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+/// When a frame counts as differing from the unit's reference frame: at least `min_pixels`
+/// useful pixels whose channels differ by more than `grey_levels` on average.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ContactGate {
+    pub grey_levels: f32,
+    pub min_pixels: usize,
+}
+
+/// Levels (mean absolute difference over the three channels, grey levels) the fit chooses from.
+pub const GATE_LEVELS: [f32; 14] = [3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 15.0, 18.0, 22.0, 27.0, 33.0, 40.0, 50.0];
+
+/// Pixels this far (crop pixels) from any labelled contact are the frame's noise.
+const NOISE_DISTANCE_PX: usize = 12;
+
+impl ContactGate {
+    /// Useful pixels of `frame` that differ from `reference` by more than the gate's grey
+    /// levels, counted up to `min_pixels` (the count stops there: enough to decide).
+    pub fn changed_pixels(&self, frame: &RgbImage, reference: &RgbImage, mask: &[bool]) -> usize {
+        let limit = self.grey_levels * 3.0;
+        let mut changed = 0;
+        for ((p, q), &useful) in frame.pixels().zip(reference.pixels()).zip(mask) {
+            if useful && channel_difference(p.0, q.0) > limit {
+                changed += 1;
+                if changed >= self.min_pixels {
+                    break;
+                }
+            }
+        }
+        changed
+    }
+
+    /// Whether `frame` differs from `reference` by more than noise.
+    pub fn differs(&self, frame: &RgbImage, reference: &RgbImage, mask: &[bool]) -> bool {
+        self.changed_pixels(frame, reference, mask) >= self.min_pixels
+    }
+}
+
+fn channel_difference(p: [u8; 3], q: [u8; 3]) -> f32 {
+    (0..3).map(|c| (p[c] as f32 - q[c] as f32).abs()).sum()
+}
+
+/// What the fit needs of one labelled frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GateFrame {
+    /// Whether its label has contact.
+    pub contact: bool,
+    /// Useful pixels above each of [`GATE_LEVELS`].
+    pub changed: [u32; GATE_LEVELS.len()],
+    /// Pixels above each level among its noise pixels (far from contact), scaled to the whole
+    /// useful disk: what noise alone would push over the level in an untouched frame.
+    pub noise: [f32; GATE_LEVELS.len()],
+}
+
+impl GateFrame {
+    /// Measures `frame` against `reference` on the useful pixels `mask`; `contact_px` marks the
+    /// crop pixels its label has contact at (all false for an untouched frame).
+    pub fn measure(frame: &RgbImage, reference: &RgbImage, mask: &[bool], contact_px: &[bool]) -> Self {
+        let n = frame.width() as usize;
+        let far = far_from(contact_px, n, NOISE_DISTANCE_PX);
+        let (mut changed, mut noisy) = ([0u32; GATE_LEVELS.len()], [0u32; GATE_LEVELS.len()]);
+        let (mut useful, mut noise_px) = (0u32, 0u32);
+        for (i, (p, q)) in frame.pixels().zip(reference.pixels()).enumerate() {
+            if !mask[i] {
+                continue;
+            }
+            useful += 1;
+            let d = channel_difference(p.0, q.0) / 3.0;
+            let above = GATE_LEVELS.partition_point(|&l| l < d);
+            changed[..above].iter_mut().for_each(|c| *c += 1);
+            if far[i] {
+                noise_px += 1;
+                noisy[..above].iter_mut().for_each(|c| *c += 1);
+            }
+        }
+        let scale = useful as f32 / noise_px.max(1) as f32;
+        let noise = if noise_px > 0 { noisy.map(|c| c as f32 * scale) } else { [f32::INFINITY; GATE_LEVELS.len()] };
+        GateFrame { contact: contact_px.iter().any(|&c| c), changed, noise }
+    }
+}
+
+/// Pixels (row-major `n` x `n`) at least `d` pixels (chessboard distance) from every marked one.
+fn far_from(marked: &[bool], n: usize, d: usize) -> Vec<bool> {
+    // Rows then columns: a marked pixel's reach is a square.
+    let rows = dilate(marked, n, d, |line, k| line * n + k);
+    let near = dilate(&rows, n, d, |line, k| k * n + line);
+    near.into_iter().map(|v| !v).collect()
+}
+
+/// Every sample within `d - 1` of a marked one along `n` lines of `n` samples, sample `k` of
+/// line `line` at `index(line, k)`.
+fn dilate(marked: &[bool], n: usize, d: usize, index: impl Fn(usize, usize) -> usize) -> Vec<bool> {
+    let mut out = vec![false; marked.len()];
+    for line in 0..n {
+        let mut last: Option<usize> = None;
+        for k in 0..n {
+            if marked[index(line, k)] {
+                last = Some(k);
+            }
+            out[index(line, k)] = last.is_some_and(|l| k - l < d);
+        }
+        let mut next: Option<usize> = None;
+        for k in (0..n).rev() {
+            if marked[index(line, k)] {
+                next = Some(k);
+            }
+            out[index(line, k)] |= next.is_some_and(|l| l - k < d);
+        }
+    }
+    out
+}
+
+/// What a gate does on a set of labelled frames.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Tally {
+    pub frames: usize,
+    /// Frames with contact, and those the gate closed on (answered with zeros).
+    pub contact: usize,
+    pub misses: usize,
+    /// Untouched frames, and those the gate opened on (the network ran for nothing).
+    pub untouched: usize,
+    pub false_opens: usize,
+}
+
+impl Tally {
+    pub fn of(gate: &ContactGate, frames: &[GateFrame]) -> Self {
+        let level = GATE_LEVELS.iter().position(|&l| l == gate.grey_levels);
+        let mut t = Tally { frames: frames.len(), ..Default::default() };
+        for f in frames {
+            // A level the fit did not measure (a hand-set gate) counts as open.
+            let open = level.is_none_or(|k| f.changed[k] as usize >= gate.min_pixels);
+            if f.contact {
+                t.contact += 1;
+                t.misses += usize::from(!open);
+            } else {
+                t.untouched += 1;
+                t.false_opens += usize::from(open);
+            }
+        }
+        t
+    }
+}
+
+/// The gate for a unit from its labelled frames; `None` without a frame with contact (nothing
+/// to keep open for).
+///
+/// For each level: the fewest pixels any contact frame pushes over it (`c`), and the most that
+/// noise pushes over it (`u`: the untouched frames' counts and every frame's noise pixels,
+/// scaled to the disk). The level with the largest margin `c / (u + 1)` is chosen, and the
+/// count set between the two (their geometric mean) where `c > u`, at `c` otherwise: never
+/// above a labelled contact frame's count, so none of them is missed.
+pub fn fit(frames: &[GateFrame]) -> Option<ContactGate> {
+    let contact: Vec<&GateFrame> = frames.iter().filter(|f| f.contact).collect();
+    if contact.is_empty() {
+        return None;
+    }
+    let best = (0..GATE_LEVELS.len())
+        .map(|k| {
+            let c = contact.iter().map(|f| f.changed[k]).min().unwrap_or(0) as f64;
+            let u = frames
+                .iter()
+                .map(|f| if f.contact { f.noise[k] as f64 } else { (f.changed[k] as f64).max(f.noise[k] as f64) })
+                .fold(0.0, f64::max);
+            (k, c, u)
+        })
+        .filter(|&(_, c, u)| c >= 1.0 && u.is_finite())
+        .max_by(|a, b| (a.1 / (a.2 + 1.0)).total_cmp(&(b.1 / (b.2 + 1.0))))?;
+    let (k, c, u) = best;
+    let min_pixels = if c > u + 1.0 { ((u + 1.0) * c).sqrt().ceil().clamp(u + 1.0, c) } else { c };
+    Some(ContactGate { grey_levels: GATE_LEVELS[k], min_pixels: min_pixels as usize })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A frame of a flat grey unit with noise of `sd` grey levels and, if `contact`, a disk of
+    /// radius `r` changed by `change` grey levels; its contact label.
+    fn frame(n: u32, sd: f64, seed: u64, contact: Option<(u32, f32)>) -> (RgbImage, Vec<bool>) {
+        let mut s = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+        let mut noise = || {
+            // Sum of uniforms, about normal.
+            (0..6)
+                .map(|_| {
+                    s ^= s << 13;
+                    s ^= s >> 7;
+                    s ^= s << 17;
+                    (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+                })
+                .sum::<f64>()
+                * sd
+                * 2.0
+        };
+        let mut label = vec![false; (n * n) as usize];
+        let img = RgbImage::from_fn(n, n, |x, y| {
+            let inside = contact.is_some_and(|(r, _)| {
+                let (dx, dy) = (x as i64 - n as i64 / 2, y as i64 - n as i64 / 2);
+                dx * dx + dy * dy <= (r * r) as i64
+            });
+            label[(y * n + x) as usize] = inside;
+            let change = if inside { contact.unwrap().1 } else { 0.0 };
+            image::Rgb(
+                [0, 1, 2].map(|c| (100.0 + c as f64 * 20.0 + change as f64 + noise()).round().clamp(0.0, 255.0) as u8),
+            )
+        });
+        (img, label)
+    }
+
+    #[test]
+    fn the_fitted_gate_keeps_every_contact_frame_and_closes_on_noise() {
+        let n = 120;
+        let reference = RgbImage::from_fn(n, n, |_, _| image::Rgb([100, 120, 140]));
+        let mask = vec![true; (n * n) as usize];
+        for sd in [1.0, 4.0] {
+            let mut frames = Vec::new();
+            for seed in 0..6 {
+                let (img, label) = frame(n, sd, seed, None);
+                frames.push(GateFrame::measure(&img, &reference, &mask, &label));
+            }
+            // Small, faint contacts: 4 px radius, 10 grey levels.
+            for seed in 10..16 {
+                let (img, label) = frame(n, sd, seed, Some((4, 10.0)));
+                frames.push(GateFrame::measure(&img, &reference, &mask, &label));
+            }
+            let gate = fit(&frames).unwrap();
+            let t = Tally::of(&gate, &frames);
+            assert_eq!((t.contact, t.misses, t.untouched), (6, 0, 6), "noise {sd}: {gate:?} {t:?}");
+            assert_eq!(t.false_opens, 0, "noise {sd}: a faint contact still stands above this noise: {gate:?}");
+            // Unseen frames of the same unit behave alike.
+            let (quiet, label) = frame(n, sd, 99, None);
+            assert!(!gate.differs(&quiet, &reference, &mask), "noise {sd}");
+            let (pressed, _) = frame(n, sd, 98, Some((5, 10.0)));
+            assert!(gate.differs(&pressed, &reference, &mask), "noise {sd}");
+            // Without untouched frames the noise comes from the pressed frames' far pixels.
+            let only_contact: Vec<GateFrame> = frames.iter().filter(|f| f.contact).cloned().collect();
+            let gate = fit(&only_contact).unwrap();
+            assert!(!gate.differs(&quiet, &reference, &mask) && gate.differs(&pressed, &reference, &mask));
+            let _ = label;
+        }
+        // Nothing labelled with contact: nothing to fit.
+        let (img, label) = frame(n, 1.0, 1, None);
+        assert_eq!(fit(&[GateFrame::measure(&img, &reference, &mask, &label)]), None);
+    }
+
+    #[test]
+    fn far_pixels_keep_their_distance() {
+        let n = 9;
+        let mut marked = vec![false; 81];
+        marked[4 * 9 + 4] = true;
+        let far = far_from(&marked, n, 2);
+        assert!(!far[4 * 9 + 4] && !far[4 * 9 + 5] && !far[3 * 9 + 3]);
+        assert!(far[4 * 9 + 6] && far[2 * 9 + 4] && far[0]);
+    }
+}

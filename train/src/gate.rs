@@ -1,0 +1,73 @@
+//! The bundle's contact gate, fitted to the unit's own labelled frames when the bundle is made
+//! (`sensor::gate`), and what it does on each split.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use formats::dataset::{Manifest, Split};
+use model::bundle::GateRecord;
+use rayon::prelude::*;
+use sensor::gate::{GateFrame, Tally, fit};
+use sensor::{CONTACT_THRESHOLD_MM, DepthMap};
+
+/// The gate for the dataset `data` (its train split) with its tally on each split; `None`
+/// where the dataset has no reference frame or no train frame with contact (no gate: the
+/// network runs on every frame). With `skip_bad`, a frame or depth map that cannot be decoded
+/// is left out (training counted and reported it); a failing read is an error either way.
+pub fn fit_gate(data: &Path, skip_bad: bool) -> Result<Option<GateRecord>> {
+    let manifest = Manifest::load(data)?;
+    let reference_path = data.join("unit/reference.png");
+    if !reference_path.is_file() {
+        return Ok(None);
+    }
+    let sensor = &manifest.sensor;
+    let reference = sensor::frame::read_reference(&reference_path, sensor.crop_size_px)?;
+    let mask = sensor.valid_mask();
+    let measure = |split: Split| -> Result<Vec<GateFrame>> {
+        let records: Vec<_> = manifest.split(Some(split)).collect();
+        let measured: Vec<Result<Option<GateFrame>>> = records
+            .par_iter()
+            .filter_map(|s| s.image.as_ref().map(|image| (s, image)))
+            .map(|(s, image)| {
+                let frame = match sensor::frame::read_crop(&data.join(image), sensor) {
+                    Ok(f) => f,
+                    Err(e @ sensor::frame::FrameError::Io { .. }) => return Err(e.into()),
+                    Err(_) if skip_bad => return Ok(None),
+                    Err(e) => return Err(e.into()),
+                };
+                let depth_path = data.join(&s.depth);
+                let bytes = std::fs::read(&depth_path).with_context(|| format!("{}", depth_path.display()))?;
+                let depth = match DepthMap::decode_png_um(&depth_path, &bytes) {
+                    Ok(d) => d,
+                    Err(_) if skip_bad => return Ok(None),
+                    Err(e) => return Err(e.into()),
+                };
+                let contact: Vec<bool> = depth.depth_mm.iter().map(|&d| d > CONTACT_THRESHOLD_MM).collect();
+                Ok(Some(GateFrame::measure(&frame, &reference, &mask, &contact)))
+            })
+            .collect();
+        Ok(measured.into_iter().collect::<Result<Vec<_>>>()?.into_iter().flatten().collect())
+    };
+    let train = measure(Split::Train)?;
+    let Some(gate) = fit(&train) else { return Ok(None) };
+    let test = measure(Split::Test)?;
+    Ok(Some(GateRecord { gate, train: Tally::of(&gate, &train), test: Tally::of(&gate, &test) }))
+}
+
+/// One line per split: what the gate does there.
+pub fn report_lines(record: &GateRecord) -> Vec<String> {
+    let line = |name: &str, t: &Tally| {
+        format!(
+            "contact gate on {name}: {} frames with contact, {} of them missed; {} untouched, {} opened on",
+            t.contact, t.misses, t.untouched, t.false_opens
+        )
+    };
+    vec![
+        format!(
+            "contact gate fitted to the unit's frames: {} useful pixels differing by more than {} grey levels",
+            record.gate.min_pixels, record.gate.grey_levels
+        ),
+        line("train", &record.train),
+        line("test", &record.test),
+    ]
+}
