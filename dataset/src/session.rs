@@ -4,9 +4,9 @@
 //!
 //! ```text
 //! DIR/captures.csv          frame,split,trial,a_deg,b_deg,c_deg,z_mm (written last)
-//! DIR/frames/NNNNNN.png     the camera's full frame (or .jpg with --jpeg-quality)
-//! DIR/reference.png         a frame with nothing touching the sensor
-//! DIR/sawtooth.png          the unit's saw-tooth calibration frame
+//! DIR/frames/NNNNNN.png     the camera's full frame (.jpg for a camera that streams JPEG)
+//! DIR/reference.png         a frame with nothing touching the sensor (or .jpg)
+//! DIR/sawtooth.png          the unit's saw-tooth calibration frame (or .jpg)
 //! DIR/.simulation/          the simulation's own files, which a real session does not have:
 //!                           generator.json (settings), rows/ (progress), truth.json (the
 //!                           unit's true sensor description, to measure a calibration against)
@@ -14,6 +14,8 @@
 //!
 //! Poses and trials are drawn exactly as `generate` draws them for the same seed, so the
 //! session's ground truth, labelled with the unit's true sensor, is the generator's dataset.
+//! The camera is a [`SessionCamera`]: the project's renderer ([`RendererCamera`]) or another
+//! image model (the `gelcam` crate's), filming the same scenes.
 
 use std::path::PathBuf;
 use std::time::Instant;
