@@ -189,8 +189,7 @@ impl Labeller<'_> {
                 let image = read_crop(&out.join(s.image.as_ref().expect("labelled records have images")), self.sensor)?;
                 let depth_path = out.join(&s.depth);
                 let depth = DepthMap::decode_png_um(&depth_path, &std::fs::read(&depth_path)?)?;
-                let contact: Vec<bool> = depth.depth_mm.iter().map(|&d| d > sensor::CONTACT_THRESHOLD_MM).collect();
-                Ok((s, GateFrame::measure(&image, &reference, &mask, &contact)))
+                Ok((s, GateFrame::labelled(&image, &reference, &mask, &depth)))
             })
             .collect::<Result<_>>()?;
         let pressed: Vec<GateFrame> = measured.iter().filter(|m| m.1.contact).map(|m| m.1.clone()).collect();

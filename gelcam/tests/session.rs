@@ -62,8 +62,7 @@ fn gate_keeps_every_contact_frame(data: &Path) {
             let frame = sensor::frame::read_crop(&data.join(s.image.as_ref().unwrap()), sensor).unwrap();
             let depth_path = data.join(&s.depth);
             let depth = sensor::DepthMap::decode_png_um(&depth_path, &std::fs::read(&depth_path).unwrap()).unwrap();
-            let contact: Vec<bool> = depth.depth_mm.iter().map(|&d| d > sensor::CONTACT_THRESHOLD_MM).collect();
-            sensor::gate::GateFrame::measure(&frame, &reference, &mask, &contact)
+            sensor::gate::GateFrame::labelled(&frame, &reference, &mask, &depth)
         })
         .collect();
     let gate = sensor::gate::fit(&frames).expect("frames with contact");

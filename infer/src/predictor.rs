@@ -210,6 +210,6 @@ impl Predictor {
 
     /// Pixels pressed deeper than `threshold_mm`.
     pub fn contact_mask(depth: &DepthMap, threshold_mm: f32) -> Vec<bool> {
-        depth.depth_mm.iter().map(|&d| d > threshold_mm).collect()
+        depth.contact_px(threshold_mm)
     }
 }

@@ -27,6 +27,11 @@ impl DepthMap {
         DepthMap { size_px, depth_mm: vec![0.0; (size_px as usize).pow(2)] }
     }
 
+    /// Pixels pressed deeper than `threshold_mm` (row-major).
+    pub fn contact_px(&self, threshold_mm: f32) -> Vec<bool> {
+        self.depth_mm.iter().map(|&d| d > threshold_mm).collect()
+    }
+
     pub fn max_mm(&self) -> f32 {
         self.depth_mm.iter().copied().fold(0.0, f32::max)
     }

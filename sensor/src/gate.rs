@@ -12,6 +12,8 @@
 use image::RgbImage;
 use serde::{Deserialize, Serialize};
 
+use crate::{CONTACT_THRESHOLD_MM, DepthMap};
+
 /// When a frame counts as differing from the unit's reference frame: at least `min_pixels`
 /// useful pixels whose channels differ by more than `grey_levels` on average.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -89,6 +91,12 @@ impl GateFrame {
         let scale = useful as f32 / noise_px.max(1) as f32;
         let noise = if noise_px > 0 { noisy.map(|c| c as f32 * scale) } else { [f32::INFINITY; GATE_LEVELS.len()] };
         GateFrame { contact: contact_px.iter().any(|&c| c), changed, noise }
+    }
+
+    /// [`GateFrame::measure`] for a labelled frame: its contact is where its ground truth
+    /// `depth` is deeper than [`CONTACT_THRESHOLD_MM`], as everywhere else.
+    pub fn labelled(frame: &RgbImage, reference: &RgbImage, mask: &[bool], depth: &DepthMap) -> Self {
+        GateFrame::measure(frame, reference, mask, &depth.contact_px(CONTACT_THRESHOLD_MM))
     }
 }
 

@@ -7,8 +7,8 @@ use anyhow::{Context, Result};
 use formats::dataset::{Manifest, Split};
 use model::bundle::GateRecord;
 use rayon::prelude::*;
+use sensor::DepthMap;
 use sensor::gate::{GateFrame, Tally, fit};
-use sensor::{CONTACT_THRESHOLD_MM, DepthMap};
 
 /// The gate for the dataset `data` (its train split) with its tally on each split; `None`
 /// where the dataset has no reference frame or no train frame with contact (no gate: the
@@ -42,8 +42,7 @@ pub fn fit_gate(data: &Path, skip_bad: bool) -> Result<Option<GateRecord>> {
                     Err(_) if skip_bad => return Ok(None),
                     Err(e) => return Err(e.into()),
                 };
-                let contact: Vec<bool> = depth.depth_mm.iter().map(|&d| d > CONTACT_THRESHOLD_MM).collect();
-                Ok(Some(GateFrame::measure(&frame, &reference, &mask, &contact)))
+                Ok(Some(GateFrame::labelled(&frame, &reference, &mask, &depth)))
             })
             .collect();
         Ok(measured.into_iter().collect::<Result<Vec<_>>>()?.into_iter().flatten().collect())

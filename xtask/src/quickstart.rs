@@ -67,17 +67,12 @@ const CONTACT_GOAL_MM: f64 = 0.20;
 /// And over all useful pixels.
 const USEFUL_GOAL_MM: f64 = 0.08;
 
-/// A path for recipe settings that do not depend on the dataset.
-fn out_of_band() -> std::path::PathBuf {
-    std::path::PathBuf::new()
-}
-
 pub fn run(args: Args) -> Result<()> {
     let started = Instant::now();
     let plan = if args.smoke {
         Plan { samples: 16, epochs: 1, preset: "tiny", input: 64, batch: 2, examples: 2 }
     } else {
-        let (net, fit) = (Recipe::Quickstart.network(), Recipe::Quickstart.fit_config(out_of_band()));
+        let (net, fit) = (Recipe::Quickstart.network(), Recipe::Quickstart.fit_config(Default::default()));
         Plan {
             samples: 1000,
             epochs: fit.epochs,
@@ -220,7 +215,7 @@ fn write_examples(predictor: &Predictor, data: &Path, manifest: &Manifest, dir: 
     let mut rows = Vec::new();
     for (k, s) in chosen.into_iter().step_by(step).take(count).enumerate() {
         let image_path = data.join(s.image.as_ref().context("the dataset has no images")?);
-        let frame = image::open(&image_path).with_context(|| format!("{}", image_path.display()))?.to_rgb8();
+        let frame = sensor::frame::read(&image_path)?;
         let truth = sensor::DepthMap::load_png_um(&data.join(&s.depth))?;
         let pred = predictor.predict(&frame)?;
         let name = format!("{:06}", s.id);

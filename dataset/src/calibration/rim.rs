@@ -2,10 +2,11 @@
 //!
 //! A real rim is rarely a crisp dark ring: scatter in the gel, the lens' blur and the mount make
 //! it a soft edge whose light fades over several pixels, and some of it may be dim where no LED
-//! reaches. So: a rough disk from Otsu's threshold; on 720 radial profiles, the strongest fall of
-//! the smoothed brightness near the disk's edge; there a logistic edge (level, slope, step,
-//! centre, width) fitted to the raw profile, whose centre is the rim on that ray; a circle
-//! through those points, fitted again without the rays that disagree, twice from the new centre.
+//! reaches. So: a rough circle where rays from the lit region's centroid leave it; on 720 radial
+//! profiles, the strongest fall of the smoothed brightness near that circle; there a logistic
+//! edge (the coating's light times its coverage, over what lies beyond) fitted to the raw
+//! profile, whose centre is the rim on that ray; a robust circle through those points (Tukey's
+//! biweight, sharper falls weighing more), twice from the new centre.
 
 use super::{CalibrationError, Plane, fail};
 
@@ -95,7 +96,7 @@ pub(super) fn find_rim(gray: &Plane) -> Result<Rim, CalibrationError> {
     let mut circle = rough_circle(&rough).ok_or_else(|| {
         CalibrationError("no circular edge around the lit disk: is the whole sensor in the frame?".into())
     })?;
-    let mut result = None;
+    let mut last = Vec::new();
     for (round, reach) in [(0, 0.09), (1, 0.06)] {
         let (uc, vc, r) = circle;
         let window = (reach * r).max(20.0);
@@ -111,15 +112,17 @@ pub(super) fn find_rim(gray: &Plane) -> Result<Rim, CalibrationError> {
         let weighted: Vec<(f64, f64, f64)> = points.iter().map(|p| (p.0, p.1, 1.0 / p.2.max(1.0))).collect();
         circle =
             robust_circle(&weighted).ok_or_else(|| CalibrationError("the rim's edge points are degenerate".into()))?;
-        let (res, scale) = residual_scale(&weighted, circle);
-        let inliers: Vec<f64> = res.into_iter().filter(|e| e.abs() <= 3.0 * scale).collect();
-        let rms = (inliers.iter().map(|e| e * e).sum::<f64>() / inliers.len().max(1) as f64).sqrt();
-        let mut widths: Vec<f64> = points.iter().map(|p| p.2).collect();
-        widths.sort_by(f64::total_cmp);
-        let centre_sd_px = if round == 1 { centre_sd(&weighted, circle) } else { 0.0 };
-        result = Some(Rim { circle, rms_px: rms, width_px: widths[widths.len() / 2], centre_sd_px });
+        last = points;
     }
-    let rim = result.expect("two rounds ran");
+    // The last round's points: how well they fit, how wide the fall is, how far half of them
+    // would move the centre.
+    let weighted: Vec<(f64, f64, f64)> = last.iter().map(|p| (p.0, p.1, 1.0 / p.2.max(1.0))).collect();
+    let (res, scale) = residual_scale(&weighted, circle);
+    let inliers: Vec<f64> = res.into_iter().filter(|e| e.abs() <= 3.0 * scale).collect();
+    let rms_px = (inliers.iter().map(|e| e * e).sum::<f64>() / inliers.len().max(1) as f64).sqrt();
+    let mut widths: Vec<f64> = last.iter().map(|p| p.2).collect();
+    widths.sort_by(f64::total_cmp);
+    let rim = Rim { circle, rms_px, width_px: widths[widths.len() / 2], centre_sd_px: centre_sd(&weighted, circle) };
     // A soft rim places each ray's point less precisely; a circle through hundreds of them is
     // still well placed. What is refused is a shape that is not a circle.
     if rim.rms_px > 1.5f64.max(0.4 * rim.width_px) {

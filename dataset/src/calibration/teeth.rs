@@ -36,9 +36,10 @@ impl StripProfile {
     }
 }
 
-/// Each tooth's drop on each side: the folded map's prediction refined by the template fit.
-/// Teeth whose drop the fit does not find (hidden, broken, beyond the frame) are left out.
-/// Returns the edges and the membrane found `(sigma, drape)` in px.
+/// Each tooth's drop on each side: the folded map's prediction, its pulse placed by the tooth
+/// fit and registered per side. Teeth whose pulse the fit does not find (hidden, broken, beyond
+/// the frame) are left out. Returns the edges, the pulse's Gaussian and tail (px), and each
+/// side's registration's standard error (px).
 pub(super) fn locate_teeth(
     profile: &StripProfile,
     map: &FoldedMap,
