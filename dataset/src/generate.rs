@@ -16,6 +16,7 @@ use formats::{SplitMix64, write_json};
 use sensor::frame::encode_png_rgb;
 
 use crate::kit::{Kit, Split, Trial};
+use crate::looks::random_look;
 use crate::raycast::{RayBundle, RayCaster, Skipping};
 use crate::render::Renderer;
 use crate::resumable;
@@ -56,6 +57,11 @@ pub fn draw_sample<'k>(kit: &'k Kit, params: &GeneratorParams, id: u32) -> (&'k 
 /// The noise seed of sample `id`'s camera image.
 pub fn noise_seed(params: &GeneratorParams, id: u32) -> u64 {
     SplitMix64::for_item(params.seed ^ 0x1a6e, id as u64).next_u64()
+}
+
+/// The seed of sample `id`'s look (`looks::random_look`) where the dataset draws one per sample.
+pub fn look_seed(params: &GeneratorParams, id: u32) -> u64 {
+    SplitMix64::for_item(params.seed ^ 0x100c, id as u64).next_u64()
 }
 
 /// The share of contact pixels that sit at the sensor's maximum depth (clipped) when up to
@@ -144,13 +150,18 @@ impl Generator<'_> {
             0..self.params.count,
             |id| out.join(format!("samples/{}.json", sample_name(id))),
             |r: &SampleRecord| {
-                let mut files: Vec<PathBuf> = std::iter::once(&r.depth).chain(&r.image).map(|f| out.join(f)).collect();
+                let mut files: Vec<PathBuf> =
+                    std::iter::once(&r.depth).chain(&r.image).chain(&r.reference).map(|f| out.join(f)).collect();
                 if self.params.depth_u8 {
                     files.push(out.join(format!("depth_u8/{}.png", sample_name(r.id))));
                 }
                 files
             },
-            |id, r: &SampleRecord| r.id == id && r.image.is_some() == self.renderer.is_some(),
+            |id, r: &SampleRecord| {
+                r.id == id
+                    && r.image.is_some() == self.renderer.is_some()
+                    && r.reference.is_some() == (self.renderer.is_some() && self.params.random_looks)
+            },
         )?;
         let resumed = done.len();
         let todo: Vec<u32> = (0..self.params.count).filter(|id| !done.contains_key(id)).collect();
@@ -191,17 +202,32 @@ impl Generator<'_> {
             let bytes = depth.to_png_u8(self.sensor.max_depth_mm as f32);
             write_atomic_unsynced(&self.out.join(format!("depth_u8/{name}.png")), &bytes)?;
         }
-        let image = match self.renderer {
-            Some(renderer) => {
-                // A unit that streams JPEG stores its stream's bytes, as a rig logs them.
-                let capture = renderer.capture(&depth.depth_mm, Some(noise_seed(&self.params, id)));
-                let (ext, bytes) = capture.file();
-                let rel = format!("images/{name}.{ext}");
+        let (mut image, mut reference) = (None, None);
+        if let Some(renderer) = self.renderer {
+            let styled;
+            let renderer = if self.params.random_looks {
+                styled = renderer.restyled(&random_look(renderer.unit(), look_seed(&self.params, id)));
+                &styled
+            } else {
+                renderer
+            };
+            // A unit that streams JPEG stores its stream's bytes, as a rig logs them.
+            let seed = noise_seed(&self.params, id);
+            let capture = renderer.capture(&depth.depth_mm, Some(seed));
+            let (ext, bytes) = capture.file();
+            let rel = format!("images/{name}.{ext}");
+            write_atomic_unsynced(&self.out.join(&rel), &bytes)?;
+            image = Some(rel);
+            if self.params.random_looks {
+                // The look's untouched frame as a lab would capture it: its own noise, its
+                // stream's encoding.
+                let untouched = renderer.capture(&vec![0.0; depth.depth_mm.len()], Some(seed ^ 0x5eed_0f2e));
+                let (ext, bytes) = untouched.file();
+                let rel = format!("references/{name}.{ext}");
                 write_atomic_unsynced(&self.out.join(&rel), &bytes)?;
-                Some(rel)
+                reference = Some(rel);
             }
-            None => None,
-        };
+        }
         let record = SampleRecord {
             id,
             split: trial.split,
@@ -209,6 +235,7 @@ impl Generator<'_> {
             scene: scene.description,
             depth: depth_rel,
             image,
+            reference,
             stats: DepthStats::of(&depth, mask),
             cast,
             capture: None,
@@ -227,6 +254,9 @@ impl Generator<'_> {
         }
         if self.renderer.is_some() {
             subs.extend(["images", "unit"]);
+            if self.params.random_looks {
+                subs.push("references");
+            }
         }
         let file = GeneratorFile {
             format_version: DATASET_FORMAT_VERSION,

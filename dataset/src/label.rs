@@ -152,14 +152,40 @@ impl Labeller<'_> {
             |r: &SampleRecord| std::iter::once(&r.depth).chain(&r.image).map(|f| out.join(f)).collect(),
             |id, r: &SampleRecord| r.id == id,
         )?;
+        // A row edited, or a frame file replaced, since the earlier run: labelled again.
+        let mut done = done;
+        let stale: Vec<u32> = jobs
+            .par_iter()
+            .filter(|j| done.contains_key(&j.id))
+            .filter_map(|j| {
+                let recorded = done[&j.id].capture.as_ref().and_then(|c| c.sha256.as_deref());
+                // A frame that cannot be read now is labelled again, and named as a bad row.
+                let now = self.row_digest(&j.capture).ok();
+                (recorded.is_none() || recorded != now.as_deref()).then_some(j.id)
+            })
+            .collect();
+        if !stale.is_empty() {
+            let lines: Vec<String> =
+                jobs.iter().filter(|j| stale.contains(&j.id)).map(|j| j.capture.line.to_string()).collect();
+            eprintln!(
+                "{} rows changed since the earlier run (their line or frame; lines {}): labelled again",
+                stale.len(),
+                lines.join(", ")
+            );
+            for id in &stale {
+                done.remove(id);
+            }
+        }
         let resumed = done.len();
         let todo: Vec<&Job> = jobs.iter().filter(|j| !done.contains_key(&j.id)).collect();
         let rays = RayBundle::new(self.sensor);
         let mask = self.sensor.valid_mask();
         let ids: Vec<u32> = (0..todo.len() as u32).collect();
+        // A bad row is the row's problem; a failing write (a full disk, permissions) stops the
+        // run whatever --on-bad-row says.
         let outcomes = resumable::make_all(&ids, "labelling", |k| {
             let job = todo[k as usize];
-            Ok(self.label_row(job, &rays, &mask, &reference))
+            self.label_row(job, &rays, &mask, &reference)
         })?;
         let mut records = done;
         let mut labelled = 0;
@@ -227,12 +253,31 @@ impl Labeller<'_> {
     }
 
     /// One row: its frame's crop checked and written, its depth cast and written, its record.
-    fn label_row(&self, job: &Job, rays: &RayBundle, mask: &[bool], reference: &RgbImage) -> Result<SampleRecord> {
+    /// What is wrong with the row (its frame, its scene) is the inner error; a failing write is
+    /// the outer one.
+    fn label_row(
+        &self,
+        job: &Job,
+        rays: &RayBundle,
+        mask: &[bool],
+        reference: &RgbImage,
+    ) -> Result<Result<SampleRecord, anyhow::Error>> {
         let c = &job.capture;
         let frame_path = self.session.join(&c.frame);
-        let crop = read_crop(&frame_path, self.sensor)?;
-        check_channel_order(&frame_path, &crop, reference, mask)?;
-        let scene = build_scene(self.kit, job.trial, c.pose)?;
+        let checked = read_crop(&frame_path, self.sensor)
+            .and_then(|crop| check_channel_order(&frame_path, &crop, reference, mask).map(|()| crop));
+        let crop = match checked {
+            Ok(crop) => crop,
+            Err(e) => return Ok(Err(e.into())),
+        };
+        let digest = match self.row_digest(c) {
+            Ok(d) => d,
+            Err(e) => return Ok(Err(e)),
+        };
+        let scene = match build_scene(self.kit, job.trial, c.pose) {
+            Ok(scene) => scene,
+            Err(e) => return Ok(Err(e)),
+        };
         let caster = RayCaster::new(&scene.part_refs(), self.sensor.radius_mm, Skipping::On);
         let (depth, cast) = caster.depth_map(self.sensor, rays);
         let name = sample_name(job.id);
@@ -246,13 +291,30 @@ impl Labeller<'_> {
             scene: scene.description,
             depth: depth_rel,
             image: Some(image_rel),
+            reference: None,
             stats: DepthStats::of(&depth, mask),
             cast,
-            capture: Some(CaptureInfo { frame: c.frame.clone(), line: c.line, extra: c.extra.clone() }),
+            capture: Some(CaptureInfo {
+                frame: c.frame.clone(),
+                line: c.line,
+                extra: c.extra.clone(),
+                sha256: Some(digest),
+            }),
         };
         let json = serde_json::to_vec_pretty(&record)?;
         write_atomic_unsynced(&self.out.join(format!("samples/{name}.json")), &json)?;
-        Ok(record)
+        Ok(Ok(record))
+    }
+}
+
+impl Labeller<'_> {
+    /// SHA-256 of a row (all but its line, which moves when rows above it are added) and its
+    /// frame file's bytes.
+    fn row_digest(&self, c: &formats::session::Capture) -> Result<String> {
+        let path = self.session.join(&c.frame);
+        let frame = std::fs::read(&path).with_context(|| format!("{}: cannot read the frame", path.display()))?;
+        let row = serde_json::to_vec(&formats::session::Capture { line: 0, ..c.clone() })?;
+        Ok(formats::fs::sha256_hex(&[row.as_slice(), b"\n", frame.as_slice()].concat()))
     }
 }
 

@@ -10,10 +10,12 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod calibration;
+pub mod cli;
 pub mod generate;
 pub mod holes;
 pub mod kit;
 pub mod label;
+pub mod looks;
 pub mod mesh;
 pub mod procedural;
 // AVX2 kernels, reached only through `simd::Avx2` tokens (or `simd`'s own dispatch).

@@ -69,6 +69,7 @@ struct SawtoothArgs {
     /// Output folder: sawtooth.png, truth.json (true sensor description), unit.json.
     #[arg(long)]
     out: PathBuf,
+    /// Hemisphere radius (mm).
     #[arg(long, default_value_t = 25.0)]
     radius_mm: f64,
     /// Multiplies the unit's sensor noise.
@@ -126,6 +127,7 @@ struct GenerateArgs {
     /// Number of samples.
     #[arg(long, default_value_t = 100)]
     count: u32,
+    /// Seed of the draws: the same seed gives the same samples.
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// The DenseTact kit folder (stl/, Index_training.csv, Index_test.csv); default: the
@@ -141,6 +143,7 @@ struct GenerateArgs {
     /// Range of the CNC's z travel (mm) from the seated pose (negative: raised).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     z_min_mm: f32,
+    /// Upper end of the z travel range (mm).
     #[arg(long, default_value_t = 2.5, allow_negative_numbers = true)]
     z_max_mm: f32,
     /// B-axis turns to draw (degrees): a range `0..360`, a list `0,90,180` or one value.
@@ -170,6 +173,12 @@ struct GenerateArgs {
     /// becomes the dataset's sensor).
     #[arg(long, conflicts_with = "sensor")]
     unit: Option<u64>,
+    /// Render each sample under its own random look (lights, colours, coating, gel smoothing,
+    /// blur, gamma, exposure, noise, JPEG and its chroma subsampling), with the look's
+    /// untouched frame beside it (references/): data for a network that must read units it
+    /// never saw. Needs --unit (whose geometry is kept).
+    #[arg(long, requires = "unit")]
+    random_looks: bool,
     /// Hemisphere radius (mm) of the default sensor or the simulated unit.
     #[arg(long, default_value_t = 25.0, conflicts_with = "sensor")]
     radius_mm: f64,
@@ -224,6 +233,7 @@ fn generate(args: GenerateArgs) -> Result<()> {
         a_axis_deg: args.a_deg,
         c_axis_deg: args.c_deg,
         image_model: formats::dataset::IMAGE_MODEL,
+        random_looks: args.random_looks,
     };
     // Travel that presses most contact past the sensor's depth range gives depth maps that say
     // nothing there: refused with the figure, or warned about.
@@ -383,4 +393,10 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+#[cfg(test)]
+#[test]
+fn every_flag_says_what_it_does() {
+    dataset::cli::assert_documented(&<Cli as clap::CommandFactory>::command());
 }

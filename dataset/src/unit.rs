@@ -73,6 +73,10 @@ pub struct Camera {
     pub gamma: f64,
     /// JPEG quality of the camera's stream (a USB camera's MJPEG); `None`: uncompressed frames.
     pub jpeg_quality: Option<u8>,
+    /// Whether the JPEG stream keeps one chroma sample per 2x2 pixels (4:2:0, most cameras'
+    /// MJPEG) rather than one per pixel (4:4:4). Absent in older `unit.json`: 4:4:4.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub chroma_420: bool,
 }
 
 /// A physical sensor unit: its true geometry and its optics and lighting.
@@ -128,6 +132,7 @@ impl SensorUnit {
                 blur_px: 0.5,
                 gamma: 1.0,
                 jpeg_quality: None,
+                chroma_420: false,
             },
         }
     }

@@ -189,6 +189,72 @@ fn sawtooth_and_calibrate_commands_round_trip() {
 }
 
 #[test]
+fn random_looks_give_each_sample_its_own_untouched_frame_and_keep_the_scenes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (plain, looks, again) = (tmp.path().join("plain"), tmp.path().join("looks"), tmp.path().join("again"));
+    let r = generate(&plain, 6, &["--unit", "5"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let r = generate(&looks, 6, &["--unit", "5", "--random-looks"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let (p, l) = (formats::dataset::Manifest::load(&plain).unwrap(), formats::dataset::Manifest::load(&looks).unwrap());
+    assert_eq!(p.sensor, l.sensor, "the unit's geometry is kept");
+    assert!(p.samples.iter().all(|s| s.reference.is_none()));
+    let unit_reference = image::open(looks.join("unit/reference.png")).unwrap().to_rgb8();
+    let mask = l.sensor.valid_mask();
+    // Mean grey-level difference over useful pixels that the sample does not press.
+    let quiet_diff = |a: &image::RgbImage, b: &image::RgbImage, depth: &sensor::DepthMap| {
+        let (mut sum, mut n) = (0.0, 0.0);
+        for (i, (x, y)) in a.pixels().zip(b.pixels()).enumerate() {
+            if mask[i] && depth.depth_mm[i] == 0.0 {
+                sum += (0..3).map(|c| (x.0[c] as f64 - y.0[c] as f64).abs()).sum::<f64>() / 3.0;
+                n += 1.0;
+            }
+        }
+        sum / n
+    };
+    let mut references = Vec::new();
+    let mut far_from_the_units = 0;
+    for (a, b) in p.samples.iter().zip(&l.samples) {
+        assert_eq!((a.trial, &a.scene), (b.trial, &b.scene), "the same scenes");
+        assert_eq!(std::fs::read(plain.join(&a.depth)).unwrap(), std::fs::read(looks.join(&b.depth)).unwrap());
+        let depth = sensor::DepthMap::load_png_um(&looks.join(&b.depth)).unwrap();
+        let frame = sensor::frame::read(&looks.join(b.image.as_ref().unwrap())).unwrap();
+        let own =
+            sensor::frame::read(&looks.join(b.reference.as_ref().expect("each sample has its reference"))).unwrap();
+        let against_own = quiet_diff(&frame, &own, &depth);
+        assert!(against_own < 6.0, "sample {}: {against_own} grey levels off its own untouched frame", b.id);
+        if quiet_diff(&frame, &unit_reference, &depth) > 3.0 * against_own {
+            far_from_the_units += 1;
+        }
+        references.push(own);
+    }
+    assert!(far_from_the_units >= 4, "only {far_from_the_units} of 6 looks differ from the unit's own");
+    for (i, a) in references.iter().enumerate() {
+        for b in &references[i + 1..] {
+            assert_ne!(a, b, "every sample has its own look");
+        }
+    }
+    // Deterministic, and resumable like any dataset: a lost reference is made again, the same.
+    let lost = looks.join(l.samples[2].reference.as_ref().unwrap());
+    let bytes = std::fs::read(&lost).unwrap();
+    std::fs::remove_file(&lost).unwrap();
+    let r = generate(&looks, 6, &["--unit", "5", "--random-looks"]);
+    assert!(r.status.success() && String::from_utf8_lossy(&r.stdout).contains("(1 new"), "{r:?}");
+    assert_eq!(std::fs::read(&lost).unwrap(), bytes);
+    assert!(generate(&again, 6, &["--unit", "5", "--random-looks"]).status.success());
+    for s in &l.samples {
+        for rel in [s.image.as_ref().unwrap(), s.reference.as_ref().unwrap()] {
+            assert_eq!(std::fs::read(looks.join(rel)).unwrap(), std::fs::read(again.join(rel)).unwrap(), "{rel}");
+        }
+    }
+    // A folder made with one look cannot be resumed with the other; looks need a unit.
+    let r = generate(&plain, 6, &["--unit", "5", "--random-looks"]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("random_looks"), "{r:?}");
+    let r = generate(&tmp.path().join("bare"), 2, &["--random-looks"]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("--unit"), "{r:?}");
+}
+
+#[test]
 fn lifted_samples_have_no_contact_and_leave_the_others_unchanged() {
     let tmp = tempfile::tempdir().unwrap();
     let (plain, lifted) = (tmp.path().join("plain"), tmp.path().join("lifted"));

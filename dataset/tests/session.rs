@@ -263,3 +263,61 @@ fn a_logging_slip_is_reported() {
     let report = ok(label(&session, &truth(&session), &tmp.path().join("l"), &[]));
     assert!(report.contains(&format!("line {}", slip.line)) && report.contains("logging slip"), "{report}");
 }
+
+/// A failing write (here an injected full disk) is an I/O error that stops the labelling, with
+/// the path and the OS's reason, even with `--on-bad-row skip`: never a bad row to leave out.
+#[test]
+fn a_full_disk_stops_the_labelling_whatever_on_bad_row_says() {
+    let tmp = tempfile::tempdir().unwrap();
+    let session = tmp.path().join("s");
+    simulated_session(&session, &[]);
+    let out = tmp.path().join("out");
+    for extra in [&[][..], &["--on-bad-row", "skip"][..]] {
+        let r = Command::new(BIN)
+            .args(["label", "--session", s(&session), "--sensor", s(&truth(&session)), "--out", s(&out)])
+            .args(extra)
+            .env(formats::fs::FAIL_WRITES_ENV, "depth/000003")
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success(), "{extra:?}: exit 0 on a full disk: {e}");
+        assert!(e.contains("000003.png") && e.contains("No space left"), "{extra:?}: {e}");
+        assert!(!e.contains("--on-bad-row") && !e.contains("skipped"), "{extra:?}: reported as a bad row: {e}");
+        assert!(!out.join("manifest.json").exists(), "{extra:?}: a dataset written as complete");
+    }
+    // With the disk back, the same command finishes what was started.
+    ok(label(&session, &truth(&session), &out, &[]));
+    assert_eq!(Manifest::load(&out).unwrap().samples.len(), 16);
+}
+
+/// A resumed labelling checks what it resumes: a row edited or a frame replaced since the
+/// earlier run is labelled again, so the result is what a fresh labelling of the session as it
+/// now stands gives.
+#[test]
+fn a_resumed_labelling_relabels_rows_and_frames_that_changed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let session = tmp.path().join("s");
+    simulated_session(&session, &[]);
+    let sensor = truth(&session);
+    let (resumed, fresh) = (tmp.path().join("resumed"), tmp.path().join("fresh"));
+    ok(label(&session, &sensor, &resumed, &[]));
+    let before = Manifest::load(&resumed).unwrap().samples[2].scene.pose.z_travel_mm;
+    // Line 4's z raised by 0.5 mm; frame 6 (line 8) replaced by frame 9's picture.
+    edit_line(&session, 4, |l| {
+        let z: f64 = l.split(',').nth(6).unwrap().parse().unwrap();
+        field(l, 6, &format!("{}", z + 0.5))
+    });
+    std::fs::copy(session.join("frames/000009.png"), session.join("frames/000006.png")).unwrap();
+    std::fs::remove_file(resumed.join("manifest.json")).unwrap(); // as a kill before the end leaves it
+    let r = label(&session, &sensor, &resumed, &[]);
+    let e = String::from_utf8_lossy(&r.stderr).into_owned();
+    ok(r);
+    assert!(e.contains("2 rows changed") && e.contains("lines 4, 8"), "{e}");
+    ok(label(&session, &sensor, &fresh, &[]));
+    assert!(
+        files(&resumed, &DATASET_FILES) == files(&fresh, &DATASET_FILES),
+        "the resumed labelling is the fresh one of the edited session"
+    );
+    let after = Manifest::load(&resumed).unwrap().samples[2].scene.pose.z_travel_mm;
+    assert!((after - before - 0.5).abs() < 1e-4, "line 4's z: {before} then {after}");
+}

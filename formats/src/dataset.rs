@@ -241,6 +241,11 @@ pub struct GeneratorParams {
     /// shades the membrane's drape and adds lens blur, a tone curve and the unit's JPEG.
     #[serde(default = "first_image_model")]
     pub image_model: u32,
+    /// Whether each sample is rendered under its own random look (lights, coating, gel,
+    /// camera; `dataset::looks`), with its own reference frame beside it: data for a network
+    /// that must read units it never saw rather than one renderer's shading.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub random_looks: bool,
 }
 
 /// The image model this version renders (see [`GeneratorParams::image_model`]).
@@ -267,6 +272,7 @@ impl GeneratorParams {
             a_axis_deg: Angles::default(),
             c_axis_deg: Angles::default(),
             image_model: IMAGE_MODEL,
+            random_looks: false,
         }
     }
 }
@@ -295,6 +301,10 @@ pub struct SampleRecord {
     /// The camera image, when the dataset has a unit.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub image: Option<String>,
+    /// The untouched frame under this sample's own look, when it has one (random looks); else
+    /// the unit's `unit/reference.png` is its reference.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference: Option<String>,
     pub stats: DepthStats,
     pub cast: CastStats,
     /// For a labelled capture session: the row of `captures.csv` the sample came from.
@@ -312,6 +322,10 @@ pub struct CaptureInfo {
     /// The row's other columns.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub extra: BTreeMap<String, String>,
+    /// SHA-256 of what the sample was made from: the row (all but its line) and the frame
+    /// file's bytes. A resumed labelling makes the sample again when they changed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sha256: Option<String>,
 }
 
 /// What a labelled dataset was made from (`dataset label`).

@@ -18,6 +18,13 @@ impl FsError {
     }
 }
 
+/// SHA-256 of `bytes` as lowercase hex (what `sha256sum` prints): a bundle's files and a
+/// labelled row's inputs are recorded by it.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
 /// Writes `bytes` to a temporary file beside `path`, syncs it, then renames it over `path`.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FsError> {
     write_atomic_with(path, |f| f.write_all(bytes))
@@ -47,6 +54,7 @@ fn write_file(
     let tmp = temp_path(path);
     let result = (|| {
         let mut file = std::fs::File::create(&tmp)?;
+        injected_failure(path)?;
         fill(&mut file)?;
         if sync {
             file.sync_all()?;
@@ -58,6 +66,22 @@ fn write_file(
         return Err(FsError::new(path, e));
     }
     Ok(())
+}
+
+/// Test hook standing in for a full disk: with `DENSETACT_FAIL_WRITES` set to a piece of a path,
+/// every atomic write to a path containing it fails as a full disk does (ENOSPC). Tests of the
+/// commands use it to check that a failing write stops them as an I/O error.
+pub const FAIL_WRITES_ENV: &str = "DENSETACT_FAIL_WRITES";
+
+fn injected_failure(path: &Path) -> std::io::Result<()> {
+    static PATTERN: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    let pattern = PATTERN.get_or_init(|| std::env::var(FAIL_WRITES_ENV).ok().filter(|p| !p.is_empty()));
+    match pattern {
+        Some(p) if path.to_string_lossy().contains(p.as_str()) => {
+            Err(std::io::Error::new(std::io::ErrorKind::StorageFull, "No space left on device (injected)"))
+        }
+        _ => Ok(()),
+    }
 }
 
 /// The temporary name used while `path` is written: same folder (so rename is atomic),

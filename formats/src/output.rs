@@ -109,15 +109,29 @@ fn resolved(path: &Path) -> PathBuf {
     }
 }
 
-/// Refuses an output file that is one of `inputs`.
+/// Refuses an output file that is one of `inputs`, lies inside an input folder, or lies in a
+/// folder a command of this project owns (a bundle, a dataset, a session, a run, an
+/// evaluation, a stream's results): a file added there (or over one of its files) leaves the
+/// folder other than its command wrote it, or unloadable.
 pub fn check_file(out: &Path, inputs: &[&Path]) -> Result<(), OutputError> {
     let o = resolved(out);
+    let refuse = |why: String| Err(OutputError { path: out.to_path_buf(), why });
     for input in inputs {
-        if resolved(input) == o {
-            return Err(OutputError {
-                path: out.to_path_buf(),
-                why: format!("is also an input ({}); writing it would destroy it", input.display()),
-            });
+        let i = resolved(input);
+        if i == o {
+            return refuse(format!("is also an input ({}); writing it would destroy it", input.display()));
+        }
+        if i.is_dir() && o.starts_with(&i) {
+            return refuse(format!("lies in an input folder ({}); write it elsewhere", input.display()));
+        }
+    }
+    for folder in o.ancestors().skip(1) {
+        if let Some(kind) = marker_kind(folder).filter(|&k| k != OutputKind::Work) {
+            return refuse(format!(
+                "lies in {} ({}), which only its own command writes; write it elsewhere",
+                kind.name(),
+                folder.display()
+            ));
         }
     }
     Ok(())
@@ -302,6 +316,19 @@ mod tests {
         let e = check_file(&tmp.path().join("./f.png"), &[&image]).unwrap_err().to_string();
         assert!(e.contains("is also an input"), "{e}");
         check_file(&tmp.path().join("d.png"), &[&image]).unwrap();
+        // Not into an input folder, nor into a folder another command owns; a work folder is
+        // anyone's.
+        std::fs::create_dir(tmp.path().join("in")).unwrap();
+        let e = check_file(&tmp.path().join("in/x.png"), &[&tmp.path().join("in")]).unwrap_err().to_string();
+        assert!(e.contains("input folder"), "{e}");
+        for (kind, refused) in [(OutputKind::Bundle, true), (OutputKind::Dataset, true), (OutputKind::Work, false)] {
+            let dir = tmp.path().join(kind.name().replace(' ', "-"));
+            drop(claim_dir(&dir, kind, &[]).unwrap());
+            std::fs::create_dir_all(dir.join("sub")).unwrap();
+            for out in [dir.join("x.png"), dir.join("sub/x.png")] {
+                assert_eq!(check_file(&out, &[]).is_err(), refused, "{kind:?} {}", out.display());
+            }
+        }
         assert!(check_distinct(&[&image, &tmp.path().join("f.png")]).is_err());
     }
 }

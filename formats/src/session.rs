@@ -128,10 +128,11 @@ impl CaptureLog {
             let row = |message: String| SessionError::Row { path: path.to_path_buf(), line, message };
             let get = |name: &str| record.get(column[name]).unwrap_or("");
             let parsed = (|| {
-                let frame = get("frame").to_string();
-                if frame.is_empty() {
+                let written = get("frame");
+                if written.is_empty() {
                     return Err(row("the frame column is empty".into()));
                 }
+                let frame = inside_session(written).map_err(row)?;
                 let split: Split = get("split").parse().map_err(row)?;
                 let trial: u32 = get("trial")
                     .parse()
@@ -139,7 +140,12 @@ impl CaptureLog {
                 let number = |name: &str| -> Result<f32, SessionError> {
                     let v: f32 =
                         get(name).parse().map_err(|_| row(format!("{name} must be a number, got {:?}", get(name))))?;
-                    if v.is_finite() { Ok(v) } else { Err(row(format!("{name} must be finite, got {v}"))) }
+                    // As written: "1e308" overflows f32 to infinity, which the file never said.
+                    if v.is_finite() {
+                        Ok(v)
+                    } else {
+                        Err(row(format!("{name} must be a finite number, got {:?}", get(name))))
+                    }
                 };
                 let pose = RigPose {
                     a_axis_deg: number("a_deg")?,
@@ -193,6 +199,32 @@ impl CaptureLog {
         }
         String::from_utf8(writer.into_inner().expect("in-memory CSV")).expect("CSV of UTF-8 fields")
     }
+}
+
+/// A frame's path as the log writes it, made canonical within the session folder: `.` and `..`
+/// resolved, so that one frame named two ways is found twice; a path that is absolute or leads
+/// out of the session is refused (a session is moved and archived as one folder).
+fn inside_session(written: &str) -> Result<String, String> {
+    use std::path::Component;
+    let path = Path::new(written);
+    let mut parts: Vec<&std::ffi::OsStr> = Vec::new();
+    for part in path.components() {
+        match part {
+            Component::Normal(p) => parts.push(p),
+            Component::CurDir => {}
+            Component::ParentDir if parts.pop().is_some() => {}
+            Component::ParentDir | Component::RootDir | Component::Prefix(_) => {
+                return Err(format!(
+                    "frame {written:?} lies outside the session folder; frames are named relative to it, inside it"
+                ));
+            }
+        }
+    }
+    if parts.is_empty() {
+        return Err(format!("frame {written:?} names no file"));
+    }
+    let joined: PathBuf = parts.iter().collect();
+    Ok(joined.to_string_lossy().into_owned())
 }
 
 /// Line numbers of byte offsets, counted forward as records are read. The CSV reader's own
@@ -275,13 +307,32 @@ mod tests {
              c.png,train,x,0,0,0,1\n\
              d.png,train,1,0,nan,0,1\n\
              a.png,train,2,0,0,0,1\n\
-             ,train,2,0,0,0,1\n",
+             ,train,2,0,0,0,1\n\
+             e.png,train,1,0,0,0,1e308\n",
         )
         .unwrap();
         assert_eq!(log.rows.len(), 1);
         let messages: Vec<String> = log.bad.iter().map(|e| e.to_string()).collect();
-        assert_eq!(log.bad.iter().map(|e| e.line().unwrap()).collect::<Vec<_>>(), [3, 4, 5, 6, 7], "{messages:?}");
-        for (m, want) in messages.iter().zip(["train or test", "whole number", "finite", "line 2", "empty"]) {
+        assert_eq!(log.bad.iter().map(|e| e.line().unwrap()).collect::<Vec<_>>(), [3, 4, 5, 6, 7, 8], "{messages:?}");
+        let wants = ["train or test", "whole number", "finite", "line 2", "empty", "finite number, got \"1e308\""];
+        // Paths: resolved within the session, refused outside it, one frame named two ways found.
+        let log = parse(
+            "frame,split,trial,a_deg,b_deg,c_deg,z_mm\n\
+             frames/a.png,train,1,0,0,0,1\n\
+             frames/./a.png,train,1,0,0,0,1\n\
+             frames/x/../b.png,train,1,0,0,0,1\n\
+             ../../x.png,train,1,0,0,0,1\n\
+             /etc/x.png,train,1,0,0,0,1\n\
+             frames/../../s2/c.png,train,1,0,0,0,1\n",
+        )
+        .unwrap();
+        assert_eq!(log.rows.iter().map(|r| r.frame.as_str()).collect::<Vec<_>>(), ["frames/a.png", "frames/b.png"]);
+        let bad: Vec<String> = log.bad.iter().map(|e| e.to_string()).collect();
+        assert!(bad[0].contains("line 3") && bad[0].contains("already listed on line 2"), "{bad:?}");
+        for (m, line) in bad[1..].iter().zip([5, 6, 7]) {
+            assert!(m.contains(&format!("line {line}")) && m.contains("outside the session"), "{m}");
+        }
+        for (m, want) in messages.iter().zip(wants) {
             assert!(m.contains("captures.csv") && m.contains(want), "{m}");
         }
         assert!(parse("frame,split,trial,a_deg,b_deg,c_deg,z_mm\n").unwrap_err().to_string().contains("no frames"));

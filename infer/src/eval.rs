@@ -251,6 +251,21 @@ impl SplitStats {
     }
 }
 
+/// What differs between the dataset's sensor and the bundle's, when they are not the same unit
+/// (a base model read on a unit it was not made for is a legitimate test, but not a silent one).
+pub fn other_unit(data: &sensor::Sensor, bundle: &sensor::Sensor) -> Option<String> {
+    if data == bundle {
+        return None;
+    }
+    let (a, b) = (&data.correspondence, &bundle.correspondence);
+    let centre_px = (a.centre_u_px - b.centre_u_px).hypot(a.centre_v_px - b.centre_v_px);
+    Some(format!(
+        "its sensor is not the bundle's (optical centres {centre_px:.2} px apart{}); frames are read through the \
+         bundle's geometry and scored against the dataset's labels",
+        if a.radial == b.radial { "" } else { ", other lens maps" }
+    ))
+}
+
 /// Evaluates `predictor` on the named splits of a dataset folder (with images), printing one
 /// line per split, and writes `out/stats.json` (keyed by split), `errors.csv` and `violin.svg`.
 pub fn evaluate_dataset(
@@ -261,6 +276,9 @@ pub fn evaluate_dataset(
 ) -> Result<BTreeMap<String, SplitStats>> {
     formats::output::check_dir(out, OutputKind::Evaluation, &[data, &predictor.dir])?;
     let manifest = Manifest::load(data)?;
+    if let Some(note) = other_unit(&manifest.sensor, &predictor.file.sensor) {
+        eprintln!("note: {}: {note}", data.join("manifest.json").display());
+    }
     let crop = predictor.file.sensor.crop_size_px;
     let mut stats = BTreeMap::new();
     let mut rows = Vec::new();
@@ -272,8 +290,19 @@ pub fn evaluate_dataset(
         if chosen.is_empty() {
             anyhow::bail!("{}: the dataset has no {name} samples to evaluate", data.join("manifest.json").display());
         }
+        // Samples rendered under their own looks are read against their own untouched frames.
+        let mut restyled = chosen.iter().any(|s| s.reference.is_some()).then(|| predictor.clone());
         for (k, s) in chosen.iter().enumerate() {
             let id = s.id;
+            let predictor = match (&mut restyled, &s.reference) {
+                (Some(own), Some(rel)) => {
+                    let path = data.join(rel);
+                    let reference = sensor::frame::read_reference(&path, crop)?;
+                    own.set_reference(reference).with_context(|| format!("{}", path.display()))?;
+                    &*own
+                }
+                _ => predictor,
+            };
             let image_rel = s.image.as_ref().with_context(|| format!("sample {id} has no image"))?;
             let image_path = data.join(image_rel);
             let frame = predictor.read_frame(&image_path)?;
@@ -419,5 +448,21 @@ mod tests {
         assert!((s.sd - (5.0f64 / 3.0).sqrt()).abs() < 1e-12);
         assert!((s.median - 2.5).abs() < 1e-12);
         assert!((s.q1 - 1.75).abs() < 1e-12 && (s.q3 - 3.25).abs() < 1e-12);
+    }
+}
+
+#[cfg(test)]
+mod unit_tests {
+    use super::*;
+
+    #[test]
+    fn another_units_dataset_is_named() {
+        let a = sensor::Sensor::default();
+        assert_eq!(other_unit(&a, &a), None);
+        let mut b = a.clone();
+        b.correspondence.centre_u_px += 3.0;
+        b.correspondence.centre_v_px += 4.0;
+        let note = other_unit(&b, &a).expect("another unit");
+        assert!(note.contains("5.00 px apart") && !note.contains("lens"), "{note}");
     }
 }

@@ -22,12 +22,14 @@ struct Cli {
 enum Command {
     /// Predict one frame: 16-bit micrometre depth PNG, false-colour PNG, PLY point cloud.
     Predict {
+        /// The bundle folder (`train export`).
         #[arg(long)]
         bundle: PathBuf,
         /// A camera frame (PNG or JPEG): the camera's full frame, cut around the bundle's
         /// calibrated optical centre, or the sensor's crop as the dataset stores it.
         #[arg(long)]
         image: PathBuf,
+        /// Depth map to write: 16-bit PNG, micrometres, on the sensor's crop.
         #[arg(long)]
         depth_out: Option<PathBuf>,
         /// False-colour depth for people.
@@ -45,6 +47,7 @@ enum Command {
     },
     /// Per-image errors in mm over a dataset's split(s): stats.json, errors.csv, violin.svg.
     Eval {
+        /// The bundle folder (`train export`).
         #[arg(long)]
         bundle: PathBuf,
         /// A dataset folder with images (`dataset generate --unit SEED`).
@@ -53,6 +56,7 @@ enum Command {
         /// train, test or all.
         #[arg(long, default_value = "all")]
         split: String,
+        /// Output folder: stats.json, errors.csv, violin.svg.
         #[arg(long)]
         out: PathBuf,
         /// Keep the network's own reading of the reference frame (by default subtracted).
@@ -66,6 +70,7 @@ enum Command {
     /// Median milliseconds per frame (network alone, end to end, a frame without contact),
     /// beside the bundle's recorded test error.
     Bench {
+        /// The bundle folder (`train export`).
         #[arg(long)]
         bundle: PathBuf,
         /// A frame with contact (PNG crop); default: the bundle's reference image.
@@ -74,6 +79,7 @@ enum Command {
         /// flex (CPU) or wgpu.
         #[arg(long, default_value = "flex")]
         device: String,
+        /// Timed repetitions (after warm-up).
         #[arg(long, default_value_t = 20)]
         repeats: usize,
     },
@@ -149,8 +155,7 @@ fn predict(
     // Outputs are checked before any work: none may be an input, none named twice.
     let outputs: Vec<&std::path::Path> =
         [&depth_out, &colour_out, &ply].into_iter().flatten().map(|p| p.as_path()).collect();
-    let inputs =
-        [image.as_path(), &bundle.join(model::bundle::BUNDLE_JSON), &bundle.join(model::bundle::WEIGHTS_BURNPACK)];
+    let inputs = [image.as_path(), bundle.as_path()];
     for out in &outputs {
         formats::output::check_file(out, &inputs)?;
     }
@@ -200,6 +205,7 @@ fn predict(
 /// What `infer stream` is told.
 #[derive(clap::Args)]
 struct StreamArgs {
+    /// The bundle folder (`train export`).
     #[arg(long)]
     bundle: PathBuf,
     /// A folder (its new frames, each once, in name order, as they appear), a glob of
@@ -215,8 +221,8 @@ struct StreamArgs {
     /// without it every frame is processed, in order, as fast as the network goes.
     #[arg(long)]
     fps: Option<f64>,
-    /// Stop after this many processed frames.
-    #[arg(long)]
+    /// Stop after this many processed frames (at least 1).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     max_frames: Option<u64>,
     /// Folder source: stop after this many seconds without a new frame (default: run
     /// until Ctrl-C).
@@ -231,6 +237,7 @@ struct StreamArgs {
     /// Keep the network's own reading of the reference frame (by default subtracted).
     #[arg(long)]
     no_tare: bool,
+    /// ROS 2 output.
     #[command(flatten)]
     ros2: Ros2Args,
 }
@@ -286,6 +293,7 @@ struct Ros2Args {
     /// (String, JSON summary).
     #[arg(long)]
     ros2: bool,
+    /// ROS 2 namespace of the published topics.
     #[arg(long, default_value = "/densetact")]
     ros2_namespace: String,
     /// The DDS domain (default: $ROS_DOMAIN_ID, else 0).
@@ -387,4 +395,10 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+#[cfg(test)]
+#[test]
+fn every_flag_says_what_it_does() {
+    dataset::cli::assert_documented(&<Cli as clap::CommandFactory>::command());
 }

@@ -26,6 +26,7 @@ pub enum InferError {
 pub use sensor::gate::ContactGate;
 
 /// A loaded bundle, ready to turn frames into depth maps.
+#[derive(Clone)]
 pub struct Predictor {
     /// The bundle's folder.
     pub dir: PathBuf,
@@ -95,6 +96,20 @@ impl Predictor {
             Some(frame) => Some(self.output_mm(self.net.forward(self.input(std::slice::from_ref(frame))?))),
             None => None,
         };
+        Ok(())
+    }
+
+    /// Reads frames against `reference` (an untouched frame of the unit as it looks now) from
+    /// now on: the input's reference difference, the gate and the tare all use it. For the
+    /// samples of a dataset rendered under random looks, each with its own untouched frame.
+    pub fn set_reference(&mut self, reference: RgbImage) -> Result<(), InferError> {
+        self.check(&reference)?;
+        let hw = [self.file.input_height_px, self.file.input_width_px];
+        self.encoder = InputEncoder::new(self.file.model.input, hw, Some(&reference)).map_err(|e| {
+            InferError::File { path: self.dir.join(model::bundle::BUNDLE_JSON), message: e.to_string() }
+        })?;
+        self.set_tare(Some(&reference))?;
+        self.reference = Some(reference);
         Ok(())
     }
 

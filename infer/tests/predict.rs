@@ -108,6 +108,70 @@ fn the_tare_zeroes_the_reference_frame() {
     assert!(!p.is_tared());
 }
 
+/// A dataset rendered under random looks: each frame is read against its own sample's
+/// untouched frame, whose own reading is then zero (the tare), in the library and in `eval`.
+#[test]
+fn samples_under_their_own_looks_are_read_against_their_own_untouched_frames() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = bundle(&dir);
+    let data = tmp.path().join("data");
+    let kit = dataset::Kit::procedural(25.0);
+    let params = formats::dataset::GeneratorParams {
+        unit: Some(3),
+        test_fraction: 1.0,
+        random_looks: true,
+        ..formats::dataset::GeneratorParams::new(4, 4, &kit.source)
+    };
+    let unit = renderer.unit().clone();
+    dataset::generate::Generator {
+        out: data.clone(),
+        sensor: &unit.sensor,
+        kit: &kit,
+        params,
+        skipping: dataset::Skipping::On,
+        renderer: Some(&renderer),
+    }
+    .run()
+    .unwrap();
+    let device = model::backend::default_device();
+    let p = Predictor::load(&dir, &device).unwrap();
+    let manifest = formats::dataset::Manifest::load(&data).unwrap();
+    let mut expected = Vec::new();
+    for s in &manifest.samples {
+        let frame = sensor::frame::read(&data.join(s.image.as_ref().unwrap())).unwrap();
+        let reference = sensor::frame::read(&data.join(s.reference.as_ref().unwrap())).unwrap();
+        let mut own = p.clone();
+        own.set_reference(reference.clone()).unwrap();
+        assert_eq!(own.reference.as_ref(), Some(&reference));
+        let on_itself = own.predict_network(std::slice::from_ref(&reference)).unwrap().remove(0);
+        assert!(on_itself.depth_mm.iter().all(|&v| v == 0.0), "sample {}: its untouched frame reads zero", s.id);
+        let (with_own, _) = own.predict_gated(&frame).unwrap();
+        let (with_units, _) = p.predict_gated(&frame).unwrap();
+        assert_ne!(with_own.depth_mm, with_units.depth_mm, "sample {}: the reference is not used", s.id);
+        expected.push(with_own);
+        // A reference of the wrong size is refused and changes nothing.
+        let small = image::RgbImage::new(10, 10);
+        assert!(own.set_reference(small).is_err());
+        assert_eq!(own.reference.as_ref(), Some(&reference));
+    }
+    // eval reads each sample against its own reference: its errors are those of the
+    // predictions above.
+    let stats =
+        infer::eval::evaluate_dataset(&p, &data, &[formats::dataset::Split::Test], &tmp.path().join("e")).unwrap();
+    let mask = &p.mask;
+    let truth: Vec<sensor::DepthMap> =
+        manifest.samples.iter().map(|s| sensor::DepthMap::load_png_um(&data.join(&s.depth)).unwrap()).collect();
+    let mean_l1: f64 = expected
+        .iter()
+        .zip(&truth)
+        .map(|(e, t)| infer::eval::ImageErrors::of(0, "test", &e.depth_mm, &t.depth_mm, mask).l1_mm)
+        .sum::<f64>()
+        / expected.len() as f64;
+    let got = stats["test"].l1_mm.mean;
+    assert!((got - mean_l1).abs() < 1e-9, "eval's L1 {got} against {mean_l1} read sample by sample");
+}
+
 #[test]
 fn the_command_writes_depth_colour_and_a_point_cloud() {
     let tmp = tempfile::tempdir().unwrap();
@@ -268,10 +332,19 @@ fn outputs_spare_inputs_and_come_whole_or_not_at_all() {
     let r = predict(&["--depth-out", d.to_str().unwrap(), "--ply", ply.to_str().unwrap()]);
     assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("p.ply"));
     assert!(!d.exists(), "a failed command leaves none of its outputs");
-
-    // A dataset without test samples: `--split test` is an error naming it.
+    // Never into the bundle's folder (over its own files or beside them), nor into a dataset's.
     let data = tmp.path().join("data");
     dataset_of(&renderer, &data, 4, 0.0);
+    let reference = std::fs::read(dir.join("reference.png")).unwrap();
+    for out in [dir.join("reference.png"), dir.join("depth.png"), data.join("depth/extra.png")] {
+        let r = predict(&["--depth-out", out.to_str().unwrap()]);
+        let e = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success() && (e.contains("input folder") || e.contains("only its own command")), "{e}");
+    }
+    assert_eq!(std::fs::read(dir.join("reference.png")).unwrap(), reference);
+    assert!(Predictor::load(&dir, &model::backend::default_device()).is_ok(), "the bundle still loads");
+
+    // A dataset without test samples: `--split test` is an error naming it.
     let out = tmp.path().join("eval");
     let r = eval(&dir, &data, "test", &out);
     let e = String::from_utf8_lossy(&r.stderr);

@@ -183,6 +183,7 @@ fn the_command_streams_a_glob_stops_at_max_frames_and_refuses_bad_sources() {
             assert!(err.contains(w), "{args:?}: {err}");
         }
     };
+    refused(&["--bundle", b, "--source", &pattern, "--max-frames", "0"], &["--max-frames", "0"]);
     let missing = format!("{}/nothing-*.png", input.display());
     refused(&["--bundle", b, "--source", &missing], &["no PNG or JPEG frame matches", "nothing-"]);
     #[cfg(not(feature = "v4l2"))]
@@ -210,4 +211,71 @@ fn the_command_streams_a_glob_stops_at_max_frames_and_refuses_bad_sources() {
     let grey = tmp.path().join("grey.png");
     image::GrayImage::new(570, 570).save(&grey).unwrap();
     refused(&["--bundle", b, "--source", grey.to_str().unwrap()], &["grey.png", "greyscale"]);
+}
+
+/// SIGTERM and SIGHUP (systemd, Docker, `timeout`, a closed terminal) end a stream as Ctrl-C
+/// does: exit 0 with the summary and the folder's files; a frame that never completed is named;
+/// a second stream into the folder leaves none of the first one's results.
+#[test]
+fn a_terminated_stream_writes_its_summary_and_names_frames_never_completed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bundle_dir = tmp.path().join("bundle");
+    let renderer = bundle(&bundle_dir);
+    let watched = tmp.path().join("watched");
+    std::fs::create_dir(&watched).unwrap();
+    let staged = tmp.path().join("staged");
+    let made = frames(&renderer, &staged, 2);
+    let out = tmp.path().join("out");
+    for (round, signal) in ["TERM", "HUP"].into_iter().enumerate() {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_infer"))
+            .args(["stream", "--bundle", bundle_dir.to_str().unwrap(), "--source", watched.to_str().unwrap()])
+            .args(["--out", out.to_str().unwrap(), "--poll-ms", "10"])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Once it says it streams (its folder claimed, its signal handler in place): a frame
+        // written whole, and (first round) one cut short that never completes.
+        let stderr = child.stderr.take().unwrap();
+        let (ready, started) = std::sync::mpsc::channel();
+        let reader = std::thread::spawn(move || {
+            let mut text = String::new();
+            for line in std::io::BufRead::lines(std::io::BufReader::new(stderr)).map_while(Result::ok) {
+                if line.starts_with("streaming") {
+                    let _ = ready.send(());
+                }
+                text += &line;
+                text.push('\n');
+            }
+            text
+        });
+        started.recv_timeout(Duration::from_secs(120)).expect("the stream starts");
+        let name = format!("r{round}.png");
+        let deadline = std::time::Instant::now() + Duration::from_secs(60);
+        std::fs::copy(&made[round].0, watched.join(&name)).unwrap();
+        if round == 0 {
+            let bytes = std::fs::read(&made[1].0).unwrap();
+            std::fs::write(watched.join("cut.png"), &bytes[..bytes.len() / 2]).unwrap();
+        }
+        let stem = name.trim_end_matches(".png");
+        while !out.join(format!("depth/{stem}.png")).is_file() && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        let killed = Command::new("kill").args([&format!("-{signal}"), &child.id().to_string()]).status().unwrap();
+        assert!(killed.success());
+        let output = child.wait_with_output().unwrap();
+        let stdout = String::from_utf8_lossy(&output.stdout);
+        let stderr = reader.join().unwrap();
+        assert!(output.status.success(), "SIG{signal}: {:?}\n{stdout}{stderr}", output.status);
+        let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("stream.json")).unwrap()).unwrap();
+        assert_eq!(json["processed"], 1, "SIG{signal}: {json}");
+        assert!(std::fs::read_to_string(out.join("frames.csv")).unwrap().contains(stem));
+        let depth: Vec<_> = std::fs::read_dir(out.join("depth")).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(depth, vec![std::ffi::OsString::from(format!("{stem}.png"))], "SIG{signal}: only this stream's");
+        let cut_named = stdout.contains("cut.png") && stdout.contains("never written whole");
+        assert_eq!(cut_named, round == 0, "SIG{signal}: {stdout}");
+        if round == 0 {
+            std::fs::remove_file(watched.join("cut.png")).unwrap();
+        }
+    }
 }

@@ -51,11 +51,13 @@ pub struct BundleFile {
     /// test error) or an import.
     #[serde(default)]
     pub training: Option<TrainingRecord>,
-    /// SHA-256 of each weights file (hex), checked when the bundle is loaded: a damaged or
-    /// replaced file is an error, not different predictions. Bundles written before it have
-    /// none.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub weights_sha256: BTreeMap<String, String>,
+    /// SHA-256 (hex) of every file the bundle names ([`BundleFile::files`]: both weights files
+    /// and the reference image), checked whenever the bundle is read: a damaged, cut or
+    /// replaced file is an error, not different predictions, and a file without one is refused
+    /// (`train sign` records them for a bundle edited by hand). Older bundles recorded the
+    /// weights' only, as `weights_sha256`.
+    #[serde(default, alias = "weights_sha256", skip_serializing_if = "BTreeMap::is_empty")]
+    pub sha256: BTreeMap<String, String>,
     /// Whose tensor names `weights.safetensors` uses (Burn's module paths unless exported with
     /// `--torch-names`). Inference reads the burnpack file, which this does not touch.
     #[serde(default)]
@@ -88,11 +90,7 @@ pub enum SafetensorsKeys {
     Pytorch,
 }
 
-/// SHA-256 of a file's bytes, in hex.
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::Digest;
-    sha2::Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
-}
+pub use formats::fs::sha256_hex;
 
 /// The parameters of `model` that hold a NaN or an infinity, by name (`None`: all finite).
 pub fn non_finite_tensors(model: &DenseDepth) -> Option<Vec<String>> {
@@ -145,17 +143,76 @@ impl BundleFile {
             sensor,
             reference_image: None,
             training: None,
-            weights_sha256: BTreeMap::new(),
+            sha256: BTreeMap::new(),
             safetensors_keys: SafetensorsKeys::Burn,
             contact_gate: None,
         }
     }
 
-    /// Reads and checks `DIR/bundle.json`.
+    /// Reads and checks `DIR/bundle.json`, and the bundle whole: every file it names lies in
+    /// the folder and has the SHA-256 recorded for it ([`BundleFile::verify`]).
     pub fn read(dir: &Path) -> Result<Self, BundleError> {
+        let file = Self::read_unverified(dir)?;
+        file.verify(dir)?;
+        Ok(file)
+    }
+
+    /// `DIR/bundle.json` alone, checked as a description but with its files unread: for
+    /// `train sign`, which records their digests.
+    pub fn read_unverified(dir: &Path) -> Result<Self, BundleError> {
         let path = dir.join(BUNDLE_JSON);
         let bytes = std::fs::read(&path).map_err(|e| err(&path, e))?;
         Self::parse(&path, &bytes)
+    }
+
+    /// The files the bundle names, by their names in it: its weights in both formats and its
+    /// reference image.
+    pub fn files(&self) -> Vec<&str> {
+        let mut names = vec![WEIGHTS_BURNPACK, WEIGHTS_SAFETENSORS];
+        names.extend(self.reference_image.as_deref());
+        names
+    }
+
+    /// Checks that every file the bundle names is a plain name inside `dir` (never a path out of
+    /// it) whose bytes have the SHA-256 recorded for it.
+    pub fn verify(&self, dir: &Path) -> Result<(), BundleError> {
+        for name in self.files() {
+            let path = dir.join(name);
+            let plain = !name.is_empty()
+                && Path::new(name).components().count() == 1
+                && matches!(Path::new(name).components().next(), Some(std::path::Component::Normal(_)));
+            if !plain {
+                return Err(err(
+                    &dir.join(BUNDLE_JSON),
+                    format!("names the file {name:?}, which is not a file inside the bundle's folder"),
+                ));
+            }
+            let bytes = std::fs::read(&path).map_err(|e| err(&path, e))?;
+            let got = sha256_hex(&bytes);
+            match self.sha256.get(name) {
+                None => {
+                    return Err(err(
+                        &path,
+                        format!(
+                            "bundle.json records no SHA-256 for it, so the bundle cannot be checked whole; if its files \
+                             are as they were exported (or edited on purpose), record them with `train sign --bundle {}`",
+                            dir.display()
+                        ),
+                    ));
+                }
+                Some(want) if *want != got => {
+                    return Err(err(
+                        &path,
+                        format!(
+                            "its SHA-256 is {got}, but bundle.json records {want}: the file was damaged, cut or \
+                             replaced; export the bundle again"
+                        ),
+                    ));
+                }
+                Some(_) => {}
+            }
+        }
+        Ok(())
     }
 
     /// Parses and checks a `bundle.json`'s bytes; `path` names it in errors.
@@ -252,40 +309,64 @@ pub fn write_bundle(
                 std::fs::write(&st, bytes).map_err(|e| err(&st, e))?;
             }
         }
-        for (name, path) in [(WEIGHTS_BURNPACK, &bpk), (WEIGHTS_SAFETENSORS, &st)] {
-            let bytes = std::fs::read(path).map_err(|e| err(path, e))?;
-            file.weights_sha256.insert(name.to_string(), sha256_hex(&bytes));
-        }
+        sign_files(tmp, &mut file)?;
         let json = tmp.join(BUNDLE_JSON);
         let text = serde_json::to_string_pretty(&file).expect("bundle serialises");
         std::fs::write(&json, text).map_err(|e| err(&json, e))?;
+        // The weights' writers create their files private (0600); a bundle is read by others
+        // (a ROS node's user, a container): every file as the system makes ordinary ones.
+        let ordinary = std::fs::metadata(&json).map_err(|e| err(&json, e))?.permissions();
+        for path in [&bpk, &st] {
+            std::fs::set_permissions(path, ordinary.clone()).map_err(|e| err(path, e))?;
+        }
         formats::output::mark(tmp, OutputKind::Bundle).map_err(|e| err(&e.path, e.why))?;
         Ok(())
     })
 }
 
-/// Loads a bundle's network (weights from the burnpack file) on `device`.
+/// Records the SHA-256 of every file `file` names in `dir` (whose files must be there).
+fn sign_files(dir: &Path, file: &mut BundleFile) -> Result<(), BundleError> {
+    let names: Vec<String> = file.files().into_iter().map(String::from).collect();
+    file.sha256.clear();
+    for name in names {
+        let path = dir.join(&name);
+        let bytes = std::fs::read(&path).map_err(|e| err(&path, e))?;
+        file.sha256.insert(name, sha256_hex(&bytes));
+    }
+    Ok(())
+}
+
+/// `train sign`: records the SHA-256 of every file a bundle names in its `bundle.json`
+/// (written atomically), for a bundle whose files were edited on purpose or that predates
+/// them. Its description and every named path are checked first; the weights must load.
+pub fn sign_bundle(dir: &Path, device: &Device) -> Result<(), BundleError> {
+    let mut file = BundleFile::read_unverified(dir)?;
+    sign_files(dir, &mut file).and_then(|()| file.verify(dir))?;
+    let text = serde_json::to_string_pretty(&file).expect("bundle serialises");
+    // Loads with the new digests before they are written: weights that do not load are not signed.
+    let bpk = dir.join(WEIGHTS_BURNPACK);
+    let bytes = std::fs::read(&bpk).map_err(|e| err(&bpk, e))?;
+    load_weights(&file, &bpk, bytes, device)?;
+    formats::fs::write_atomic(&dir.join(BUNDLE_JSON), text.as_bytes())?;
+    Ok(())
+}
+
+/// Loads a bundle's network (weights from the burnpack file) on `device`; the bundle is checked
+/// whole first ([`BundleFile::read`]).
 pub fn load_bundle(dir: &Path, device: &Device) -> Result<(DenseDepth, BundleFile), BundleError> {
     let file = BundleFile::read(dir)?;
     let bpk = dir.join(WEIGHTS_BURNPACK);
     let bytes = std::fs::read(&bpk).map_err(|e| err(&bpk, e))?;
-    if let Some(want) = file.weights_sha256.get(WEIGHTS_BURNPACK) {
-        let got = sha256_hex(&bytes);
-        if &got != want {
-            return Err(err(
-                &bpk,
-                format!(
-                    "its SHA-256 is {got}, but bundle.json records {want}: the file was damaged or replaced; \
-                     export the bundle again"
-                ),
-            ));
-        }
-    }
-    let record = ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes)).map_err(|e| err(&bpk, e))?;
-    let model = file.model.init(device).try_load_record(record).map_err(|e| err(&bpk, e))?;
+    let model = load_weights(&file, &bpk, bytes, device)?;
+    Ok((model, file))
+}
+
+fn load_weights(file: &BundleFile, bpk: &Path, bytes: Vec<u8>, device: &Device) -> Result<DenseDepth, BundleError> {
+    let record = ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes)).map_err(|e| err(bpk, e))?;
+    let model = file.model.init(device).try_load_record(record).map_err(|e| err(bpk, e))?;
     if let Some(names) = non_finite_tensors(&model) {
         return Err(err(
-            &bpk,
+            bpk,
             format!(
                 "{} tensor(s) hold NaN or infinite values: {}; the model cannot be used",
                 names.len(),
@@ -293,7 +374,7 @@ pub fn load_bundle(dir: &Path, device: &Device) -> Result<(DenseDepth, BundleFil
             ),
         ));
     }
-    Ok((model, file))
+    Ok(model)
 }
 
 #[cfg(test)]
@@ -323,9 +404,74 @@ mod tests {
         let (loaded, file) = load_bundle(&dir, &device).unwrap();
         assert_eq!(file.reference_image.as_deref(), Some(REFERENCE_PNG));
         assert!(dir.join(WEIGHTS_SAFETENSORS).is_file());
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = |name: &str| std::fs::metadata(dir.join(name)).unwrap().permissions().mode() & 0o777;
+            for name in [WEIGHTS_SAFETENSORS, WEIGHTS_BURNPACK, REFERENCE_PNG] {
+                assert_eq!(mode(name), mode(BUNDLE_JSON), "{name} is as readable as bundle.json");
+            }
+        }
         let x = Tensor::<4>::random([1, 3, 64, 64], Distribution::Uniform(0.0, 1.0), &device);
         let (a, b) = (model.forward(x.clone()), loaded.forward(x));
         assert_eq!(a.into_data().try_to_vec::<f32>().unwrap(), b.into_data().try_to_vec::<f32>().unwrap());
+    }
+
+    /// Every file a bundle names is checked at load: a cut safetensors file, a reference image
+    /// replaced or named outside the folder, digests removed (refused with the command that
+    /// records them; after it, the bundle loads).
+    #[test]
+    fn bundles_are_checked_whole() {
+        let device = crate::backend::default_device();
+        let model = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&device);
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("b");
+        write_bundle(&dir, &model, &bundle_file(), Some(b"png"), &[]).unwrap();
+        let json = dir.join(BUNDLE_JSON);
+        let original = std::fs::read_to_string(&json).unwrap();
+        let edit = |f: &dyn Fn(&mut BundleFile)| {
+            let mut file: BundleFile = serde_json::from_str(&original).unwrap();
+            f(&mut file);
+            std::fs::write(&json, serde_json::to_string(&file).unwrap()).unwrap();
+        };
+        let refusal = || load_bundle(&dir, &device).expect_err("refused").to_string();
+
+        let st = dir.join(WEIGHTS_SAFETENSORS);
+        let bytes = std::fs::read(&st).unwrap();
+        std::fs::write(&st, &bytes[..1000]).unwrap();
+        let e = refusal();
+        assert!(e.contains("weights.safetensors") && e.contains("SHA-256"), "{e}");
+        std::fs::write(&st, &bytes).unwrap();
+
+        std::fs::write(dir.join(REFERENCE_PNG), b"another png").unwrap();
+        let e = refusal();
+        assert!(e.contains("reference.png") && e.contains("SHA-256"), "{e}");
+        std::fs::write(dir.join(REFERENCE_PNG), b"png").unwrap();
+
+        let elsewhere = tmp.path().join("elsewhere.png");
+        std::fs::write(&elsewhere, b"png").unwrap();
+        for name in [elsewhere.to_str().unwrap(), "../elsewhere.png", "sub/reference.png", "."] {
+            edit(&|f| {
+                f.reference_image = Some(name.to_string());
+                f.sha256.insert(name.to_string(), sha256_hex(b"png"));
+            });
+            let e = refusal();
+            assert!(e.contains("not a file inside the bundle"), "{name}: {e}");
+        }
+
+        // Digests gone (an older bundle, or one edited by hand): refused, naming the command.
+        for names in [&[][..], &[WEIGHTS_BURNPACK][..]] {
+            edit(&|f| f.sha256.retain(|k, _| names.contains(&k.as_str())));
+            let e = refusal();
+            assert!(e.contains("records no SHA-256") && e.contains("train sign --bundle"), "{e}");
+        }
+        sign_bundle(&dir, &device).unwrap();
+        load_bundle(&dir, &device).unwrap();
+        // Signing checks what it signs: weights that do not load are not signed.
+        edit(&|f| f.sha256.clear());
+        std::fs::write(dir.join(WEIGHTS_BURNPACK), b"not weights").unwrap();
+        assert!(sign_bundle(&dir, &device).is_err());
+        assert!(!std::fs::read_to_string(&json).unwrap().contains(WEIGHTS_SAFETENSORS), "nothing was signed");
     }
 
     #[test]
@@ -353,7 +499,7 @@ mod tests {
         // The checks below reach past the checksum: bundle.json records the new file's.
         let rerecord = || {
             let mut file: BundleFile = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-            file.weights_sha256.insert(WEIGHTS_BURNPACK.into(), sha256_hex(&std::fs::read(&bpk).unwrap()));
+            file.sha256.insert(WEIGHTS_BURNPACK.into(), sha256_hex(&std::fs::read(&bpk).unwrap()));
             std::fs::write(&json, serde_json::to_string(&file).unwrap()).unwrap();
         };
         // Weights of another architecture: a mis-shaped tensor.

@@ -119,7 +119,7 @@ fn a_bundle_exported_with_torch_names_says_so_and_still_loads() {
     write_bundle(&dir, &net, &file, None, &[]).unwrap();
     let (loaded, read) = load_bundle(&dir, &device).unwrap();
     assert_eq!(read.safetensors_keys, SafetensorsKeys::Pytorch);
-    assert!(read.weights_sha256.contains_key(WEIGHTS_SAFETENSORS));
+    assert!(read.sha256.contains_key(WEIGHTS_SAFETENSORS));
     assert_eq!(tensors(&loaded), tensors(&net));
     let st = std::fs::read(dir.join(WEIGHTS_SAFETENSORS)).unwrap();
     let st = safetensors::SafeTensors::deserialize(&st).unwrap();

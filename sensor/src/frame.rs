@@ -165,12 +165,27 @@ pub fn encode_png_rgb(img: &RgbImage) -> Vec<u8> {
 /// Encodes an RGB image as JPEG at `quality` (1..=100), as USB cameras stream it (MJPEG).
 /// Panics on a side beyond JPEG's 65535, which no sensor frame comes near.
 pub fn encode_jpeg_rgb(img: &RgbImage, quality: u8) -> Vec<u8> {
+    encode_jpeg_rgb_with(img, quality, Chroma::Full)
+}
+
+/// How a JPEG stores colour: one chroma sample per pixel, or one per 2x2 pixels (4:2:0, as most
+/// cameras' MJPEG streams do).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Chroma {
+    Full,
+    Sub420,
+}
+
+/// [`encode_jpeg_rgb`] with the chroma sampling chosen.
+pub fn encode_jpeg_rgb_with(img: &RgbImage, quality: u8, chroma: Chroma) -> Vec<u8> {
     let mut out = Vec::with_capacity(img.len() / 8);
     let (w, h) = (u16::try_from(img.width()), u16::try_from(img.height()));
     let (Ok(w), Ok(h)) = (w, h) else { panic!("a {}x{} frame is too large for JPEG", img.width(), img.height()) };
     let mut encoder = jpeg_encoder::Encoder::new(&mut out, quality.clamp(1, 100));
-    // Full chroma (4:4:4) at every quality: the calibration reads tooth edges per colour channel.
-    encoder.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_4_4);
+    encoder.set_sampling_factor(match chroma {
+        Chroma::Full => jpeg_encoder::SamplingFactor::R_4_4_4,
+        Chroma::Sub420 => jpeg_encoder::SamplingFactor::R_4_2_0,
+    });
     encoder.encode(img.as_raw(), w, h, jpeg_encoder::ColorType::Rgb).expect("in-memory JPEG encode");
     out
 }

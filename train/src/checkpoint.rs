@@ -4,6 +4,7 @@
 //! into `RUN/checkpoint.new/`, then the old folder is renamed away and the new one into place;
 //! a kill between the two renames leaves `checkpoint.old/`, which a resume takes instead.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
@@ -36,6 +37,23 @@ pub struct RunState {
     /// Sum and count of the training loss over the current epoch so far.
     pub epoch_loss_sum: f64,
     pub epoch_loss_count: u64,
+    /// SHA-256 of each data folder's `manifest.json` (every sample's record, a labelled row's
+    /// digests among them) when the run began, by folder: a resume on data that changed is
+    /// refused. Absent in runs begun before it was recorded (not checked).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub data_sha256: BTreeMap<String, String>,
+}
+
+/// The digests [`RunState::data_sha256`] records for `folders`.
+pub fn data_digests(folders: &[std::path::PathBuf]) -> anyhow::Result<BTreeMap<String, String>> {
+    folders
+        .iter()
+        .map(|dir| {
+            let path = dir.join("manifest.json");
+            let bytes = std::fs::read(&path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            Ok((dir.display().to_string(), formats::fs::sha256_hex(&bytes)))
+        })
+        .collect()
 }
 
 impl RunState {
@@ -53,6 +71,7 @@ impl RunState {
             history: Vec::new(),
             epoch_loss_sum: 0.0,
             epoch_loss_count: 0,
+            data_sha256: BTreeMap::new(),
         }
     }
 

@@ -262,9 +262,21 @@ impl DepthDataset {
         if let Some(d) = depth.depth_mm.iter().find(|&&d| !(0.0..=limit).contains(&d)) {
             return Err(bad(&depth_path, format!("depth {d} mm is outside 0..{} mm", unit.sensor.max_depth_mm)));
         }
+        // A sample rendered under its own look carries its own untouched frame.
+        let own_encoder;
+        let encoder = match &record.reference {
+            Some(rel) if unit.encoder.channels().needs_reference() => {
+                let path = unit.dir.join(rel);
+                let reference = sensor::frame::read_reference(&path, crop)?;
+                own_encoder = InputEncoder::new(unit.encoder.channels(), self.input_hw, Some(&reference))
+                    .map_err(|e| bad(&path, e))?;
+                &own_encoder
+            }
+            _ => &unit.encoder,
+        };
         let look = jitter.filter(|_| self.vary_look).map(|j| move |planes: &mut [f32]| j.look.apply(planes));
         let look = look.as_ref().map(|f| f as &dyn Fn(&mut [f32]));
-        let image = unit.encoder.encode_looking(&img, look, |planes| {
+        let image = encoder.encode_looking(&img, look, |planes| {
             if let Some(j) = jitter {
                 let mut rng = SplitMix64::new(j.seed);
                 for v in planes {

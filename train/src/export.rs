@@ -19,6 +19,9 @@ use crate::data::DepthDataset;
 pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device, keys: SafetensorsKeys) -> Result<()> {
     let latest =
         checkpoint::latest(run).with_context(|| format!("{}: no checkpoint in this run folder", run.display()))?;
+    // Held while exporting: a run whose training still goes on is refused, not exported at
+    // whatever step it last saved.
+    let _held = formats::output::claim_dir(run, formats::output::OutputKind::Run, &[])?;
     let state = checkpoint::read_state(&latest)?;
     let weights = checkpoint::best(run).unwrap_or(latest);
     let net = checkpoint::restore_model(&weights, &state.model, device)?;
@@ -149,8 +152,7 @@ fn warn_differences(model: &model::DenseDepthConfig) {
 /// Writes `bundle`'s network as ONNX to `out` (never over one of the bundle's files); returns
 /// its size in bytes.
 pub fn export_onnx(bundle: &Path, out: &Path, device: &burn::tensor::Device) -> Result<usize> {
-    let inputs = [bundle.join(model::bundle::BUNDLE_JSON), bundle.join(model::bundle::WEIGHTS_BURNPACK)];
-    formats::output::check_file(out, &inputs.iter().map(|p| p.as_path()).collect::<Vec<_>>())?;
+    formats::output::check_file(out, &[bundle])?;
     let (net, file) = model::bundle::load_bundle(bundle, device)?;
     let bytes = model::onnx::export(&net, &file).with_context(|| format!("{}", bundle.display()))?;
     formats::fs::write_atomic(out, &bytes)?;

@@ -200,6 +200,16 @@ impl<'a> Run<'a> {
                         differences.join("; ")
                     );
                 }
+                let now = checkpoint::data_digests(&config.folders())?;
+                for (dir, was) in &state.data_sha256 {
+                    if now.get(dir) != Some(was) {
+                        bail!(
+                            "{}: the dataset changed since this run began (its manifest's SHA-256 differs); resume on \
+                             the data it began with, or start a new run with another --out",
+                            Path::new(dir).join("manifest.json").display()
+                        );
+                    }
+                }
                 let (net, optim) = checkpoint::restore(&ckpt, &state, &train_device)?;
                 eprintln!("resuming at epoch {} batch {} (step {})", state.epoch + 1, state.batch, state.global_step);
                 (net, optim, state)
@@ -215,7 +225,11 @@ impl<'a> Run<'a> {
                     Some(w) => w.fork(&train_device).train(),
                     None => start.model_config.init(&train_device),
                 };
-                (net, optimizer(), RunState::new(config.clone(), start.model_config))
+                let state = RunState {
+                    data_sha256: checkpoint::data_digests(&config.folders())?,
+                    ..RunState::new(config.clone(), start.model_config)
+                };
+                (net, optimizer(), state)
             }
         };
         if config.freeze_encoder {

@@ -29,11 +29,8 @@ pub fn fit_gate(data: &Path, skip_bad: bool) -> Result<Option<GateRecord>> {
             .par_iter()
             .filter_map(|s| s.image.as_ref().map(|image| (s, image)))
             .map(|(s, image)| {
-                let frame = match sensor::frame::read_crop(&data.join(image), sensor) {
-                    Ok(f) => f,
-                    Err(e @ sensor::frame::FrameError::Io { .. }) => return Err(e.into()),
-                    Err(_) if skip_bad => return Ok(None),
-                    Err(e) => return Err(e.into()),
+                let Some(frame) = readable(sensor::frame::read_crop(&data.join(image), sensor), skip_bad)? else {
+                    return Ok(None);
                 };
                 let depth_path = data.join(&s.depth);
                 let bytes = std::fs::read(&depth_path).with_context(|| format!("{}", depth_path.display()))?;
@@ -42,7 +39,16 @@ pub fn fit_gate(data: &Path, skip_bad: bool) -> Result<Option<GateRecord>> {
                     Err(_) if skip_bad => return Ok(None),
                     Err(e) => return Err(e.into()),
                 };
-                Ok(Some(GateFrame::labelled(&frame, &reference, &mask, &depth)))
+                // A sample under its own look is gated against its own untouched frame.
+                let own = match &s.reference {
+                    Some(rel) => {
+                        let read = sensor::frame::read_reference(&data.join(rel), sensor.crop_size_px);
+                        let Some(own) = readable(read, skip_bad)? else { return Ok(None) };
+                        Some(own)
+                    }
+                    None => None,
+                };
+                Ok(Some(GateFrame::labelled(&frame, own.as_ref().unwrap_or(&reference), &mask, &depth)))
             })
             .collect();
         Ok(measured.into_iter().collect::<Result<Vec<_>>>()?.into_iter().flatten().collect())
@@ -51,6 +57,17 @@ pub fn fit_gate(data: &Path, skip_bad: bool) -> Result<Option<GateRecord>> {
     let Some(gate) = fit(&train) else { return Ok(None) };
     let test = measure(Split::Test)?;
     Ok(Some(GateRecord { gate, train: Tally::of(&gate, &train), test: Tally::of(&gate, &test) }))
+}
+
+/// A frame that was read: `None` where it cannot be decoded and `skip_bad` leaves it out; a
+/// failing read is an error either way.
+fn readable<T>(read: Result<T, sensor::frame::FrameError>, skip_bad: bool) -> Result<Option<T>> {
+    match read {
+        Ok(v) => Ok(Some(v)),
+        Err(e @ sensor::frame::FrameError::Io { .. }) => Err(e.into()),
+        Err(_) if skip_bad => Ok(None),
+        Err(e) => Err(e.into()),
+    }
 }
 
 /// One line per split: what the gate does there.

@@ -23,8 +23,10 @@ enum Command {
     Finetune(FinetuneArgs),
     /// Write the bundle of a run's latest checkpoint.
     Export {
+        /// The run folder (`fit --out`) whose latest checkpoint (its best epoch, if it keeps one) is exported.
         #[arg(long)]
         run: PathBuf,
+        /// The bundle folder to write.
         #[arg(long)]
         out: PathBuf,
         /// Name weights.safetensors' tensors as the reference PyTorch DenseDepth's state_dict
@@ -32,9 +34,18 @@ enum Command {
         #[arg(long)]
         torch_names: bool,
     },
+    /// Record the SHA-256 of every file a bundle names in its bundle.json, after its files
+    /// were edited on purpose (or for a bundle older than the digests): every bundle is checked
+    /// whole when read, and one without them is refused.
+    Sign {
+        /// The bundle folder.
+        #[arg(long)]
+        bundle: PathBuf,
+    },
     /// A bundle's network as an ONNX model (opset 17, weights embedded, batch, height and
     /// width free; input encoding, depth scale, model and sensor in its metadata).
     Onnx {
+        /// The bundle folder to read.
         #[arg(long)]
         bundle: PathBuf,
         /// The .onnx file to write.
@@ -44,12 +55,16 @@ enum Command {
     /// Make a bundle from a PyTorch DenseDepth state_dict: a `torch.save` file or safetensors
     /// (`safetensors.torch.save_file`, or a bundle's weights.safetensors with PyTorch's names).
     Import {
+        /// The PyTorch state_dict: a `torch.save` file or safetensors.
         #[arg(long)]
         pth: PathBuf,
+        /// The sensor description (JSON) the bundle is for, as `dataset calibrate` writes it.
         #[arg(long)]
         sensor: PathBuf,
+        /// Network input, HxW (each side at least 29).
         #[arg(long, default_value = "480x640", value_parser = parse_hw)]
         input: [usize; 2],
+        /// The bundle folder to write.
         #[arg(long)]
         out: PathBuf,
         /// Name weights.safetensors' tensors as the reference PyTorch model's state_dict.
@@ -85,6 +100,7 @@ struct Common {
     /// Peak learning rate (default: the recipe's; fine-tuning: 1e-4).
     #[arg(long)]
     lr: Option<f64>,
+    /// Seed of the weights, the data order, the augmentation and the hold-out.
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// flex (the CPU), wgpu (the default adapter), wgpu:N (the N-th discrete GPU), cuda or
@@ -146,6 +162,7 @@ struct Common {
 
 #[derive(clap::Args)]
 struct FitArgs {
+    /// Settings shared with `finetune`.
     #[command(flatten)]
     common: Common,
     /// What every setting not given defaults to: `quickstart` (the best measured: the compact
@@ -191,6 +208,7 @@ struct FitArgs {
 
 #[derive(clap::Args)]
 struct FinetuneArgs {
+    /// Settings shared with `fit`.
     #[command(flatten)]
     common: Common,
     /// The bundle to start from.
@@ -227,6 +245,9 @@ fn parse_hw(s: &str) -> Result<[usize; 2], String> {
     Ok(hw)
 }
 
+/// More loader threads than this only queue on the cores (and thousands cannot be started).
+const MAX_LOADER_WORKERS: usize = 256;
+
 /// How the run is carried out: `--devices` when given, else `--device`; resume, loader threads.
 fn options(c: &Common) -> Result<RunOptions> {
     let devices = match &c.devices {
@@ -246,8 +267,24 @@ fn config(
     net_range: [f32; 2],
     freeze_encoder: bool,
 ) -> Result<FitConfig> {
+    if c.loader_workers > MAX_LOADER_WORKERS {
+        bail!("--loader-workers {}: at most {MAX_LOADER_WORKERS} threads decode samples", c.loader_workers);
+    }
+    // Recorded as absolute paths, so that the run exports and resumes from any folder.
+    let absolute = |p: &PathBuf| {
+        std::fs::canonicalize(p).with_context(|| format!("{}: cannot open the dataset folder", p.display()))
+    };
+    let data = absolute(&c.data)?;
+    let mut more_data = Vec::new();
+    for dir in &c.more_data {
+        let dir = absolute(dir)?;
+        if dir == data || more_data.contains(&dir) {
+            bail!("--more-data {}: this folder is already among the data (each is read once)", dir.display());
+        }
+        more_data.push(dir);
+    }
     let config = FitConfig {
-        data: c.data.clone(),
+        data,
         input_hw,
         net_range,
         schedule: c.schedule.unwrap_or(base.schedule),
@@ -265,7 +302,7 @@ fn config(
         contact_weight: c.contact_weight.unwrap_or(base.contact_weight),
         patience: c.patience,
         max_minutes: c.max_minutes,
-        more_data: c.more_data.clone(),
+        more_data,
         vary_look: c.vary_look,
     };
     config.validate()?;
@@ -309,10 +346,11 @@ fn run_fit(args: FitArgs) -> Result<()> {
     let mut inputs: Vec<&std::path::Path> = vec![&args.common.data, &args.common.out];
     inputs.extend(args.common.more_data.iter().map(|p| p.as_path()));
     check_bundle(&args.bundle, &inputs)?;
+    // The devices first: a device that cannot run is named before the data is looked at.
+    let options = options(&args.common)?;
     let (cfg, model_config) = fit_settings(&args)?;
     let preset = args.preset.clone().unwrap_or_else(|| args.recipe.network().preset.to_string());
     let channels = model_config.input;
-    let options = options(&args.common)?;
     let dev = options.devices[0].clone();
     let weights = match &args.encoder_weights {
         Some(path) => {
@@ -391,6 +429,9 @@ fn main() -> ExitCode {
             train::export::export_run(&run, &out, &model::backend::default_device(), keys(torch_names))
                 .map(|()| println!("wrote bundle {}", out.display()))
         }
+        Command::Sign { bundle } => model::bundle::sign_bundle(&bundle, &model::backend::default_device())
+            .map_err(anyhow::Error::from)
+            .map(|()| println!("signed {}: every file it names has its SHA-256 in bundle.json", bundle.display())),
         Command::Onnx { bundle, out } => train::export::export_onnx(&bundle, &out, &model::backend::default_device())
             .map(|bytes| println!("wrote {} ({:.1} MB)", out.display(), bytes as f64 / 1e6)),
         Command::Import { pth, sensor, input, out, torch_names } => {
@@ -406,4 +447,10 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+#[cfg(test)]
+#[test]
+fn every_flag_says_what_it_does() {
+    dataset::cli::assert_documented(&<Cli as clap::CommandFactory>::command());
 }

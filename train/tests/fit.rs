@@ -57,9 +57,14 @@ fn predictions(bundle: &Path) -> Vec<f32> {
     net.forward(x).into_data().try_to_vec::<f32>().unwrap()
 }
 
-/// `train fit --dry-run`'s settings and network, as JSON.
-fn dry_run(extra: &[&str]) -> serde_json::Value {
-    let r = Command::new(BIN).args(["fit", "--data", "d", "--out", "r", "--dry-run"]).args(extra).output().unwrap();
+/// `train fit --dry-run`'s settings and network for the data folder `data`, as JSON.
+fn dry_run(data: &Path, extra: &[&str]) -> serde_json::Value {
+    let r = Command::new(BIN)
+        .current_dir(data.parent().unwrap())
+        .args(["fit", "--data", data.file_name().unwrap().to_str().unwrap(), "--out", "r", "--dry-run"])
+        .args(extra)
+        .output()
+        .unwrap();
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     serde_json::from_slice(&r.stdout).unwrap()
 }
@@ -69,18 +74,37 @@ fn the_cli_trains_the_quickstarts_recipe_unless_told_otherwise() {
     fn json(v: &impl serde::Serialize) -> serde_json::Value {
         serde_json::to_value(v).unwrap()
     }
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("d");
+    std::fs::create_dir(&d).unwrap();
+    // The data folder given relative to the working directory is recorded absolute.
+    let absolute = std::fs::canonicalize(&d).unwrap();
     for (flags, recipe) in [(&[][..], train::Recipe::Quickstart), (&["--recipe", "paper"][..], train::Recipe::Paper)] {
-        let printed = dry_run(flags);
-        assert_eq!(printed["fit"], json(&recipe.fit_config("d".into())), "{recipe:?}");
+        let printed = dry_run(&d, flags);
+        assert_eq!(printed["fit"], json(&recipe.fit_config(absolute.clone())), "{recipe:?}");
         assert_eq!(printed["model"], json(&recipe.model_config().unwrap()), "{recipe:?}");
     }
     // A flag given wins over the recipe's value; the rest stay the recipe's.
-    let printed = dry_run(&["--epochs", "3", "--half-resolution", "--channels", "rgb"]);
-    let quickstart = train::Recipe::Quickstart.fit_config("d".into());
+    let printed = dry_run(&d, &["--epochs", "3", "--half-resolution", "--channels", "rgb"]);
+    let quickstart = train::Recipe::Quickstart.fit_config(absolute.clone());
     assert_eq!(printed["fit"]["epochs"], 3);
     assert_eq!(printed["fit"]["lr"], quickstart.lr);
     assert_eq!(printed["model"]["full_resolution"], false);
     assert_eq!(printed["model"]["input"], json(&model::InputChannels::Rgb));
+    // The same folder twice, or a flood of loader threads, is refused before any work.
+    for (flags, words) in [
+        (&["--more-data", "../d"][..], "already among the data"),
+        (&["--loader-workers", "100000"][..], "--loader-workers"),
+    ] {
+        let r = Command::new(BIN)
+            .current_dir(&d)
+            .args(["fit", "--data", ".", "--out", "r", "--dry-run"])
+            .args(flags)
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success() && e.contains(words) && !e.contains("panicked"), "{flags:?}: {e}");
+    }
 }
 
 #[test]
@@ -426,4 +450,75 @@ fn a_varied_look_changes_frame_and_reference_alike() {
     };
     within(&gains, Look::GAIN_RATIO);
     within(&exponents, Look::EXPONENT_RATIO);
+}
+
+/// A dataset rendered under random looks: each item's difference channels are taken against
+/// its own sample's untouched frame (noise where nothing presses), not the unit's; the contact
+/// gate is fitted against the same frames when the bundle is made.
+#[test]
+fn samples_under_random_looks_are_read_against_their_own_untouched_frames() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("looks");
+    let kit = dataset::Kit::procedural(25.0);
+    let params = formats::dataset::GeneratorParams {
+        test_fraction: 0.25,
+        lifted_fraction: 0.5,
+        random_looks: true,
+        ..formats::dataset::GeneratorParams::new(2, 12, &kit.source)
+    };
+    dataset::generate::generate_with_unit(&data, &kit, 3, 25.0, params).unwrap();
+    let model_config = model::DenseDepthConfig::new(model::DenseNetConfig::tiny())
+        .with_input(model::InputChannels::RgbDifference)
+        .with_full_resolution(true);
+    let mut set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
+    set.set_model(&model_config).unwrap();
+    let unit_reference = sensor::frame::read(&data.join("unit/reference.png")).unwrap();
+    let against_unit =
+        model::InputEncoder::new(model::InputChannels::RgbDifference, [64, 64], Some(&unit_reference)).unwrap();
+    let per = 64 * 64;
+    let mean_abs = |v: &[f32]| v.iter().map(|x| x.abs() as f64).sum::<f64>() / v.len() as f64;
+    let mut lifted = 0;
+    for i in 0..set.len() {
+        let record = set.record(i).clone();
+        if record.stats.contact_fraction > 0.0 {
+            continue;
+        }
+        lifted += 1;
+        let item = set.load(i, None).unwrap();
+        let own = mean_abs(&item.image[3 * per..]);
+        let frame = sensor::frame::read(&data.join(record.image.as_ref().unwrap())).unwrap();
+        let unit = mean_abs(&against_unit.encode(&frame)[3 * per..]);
+        assert!(own < 0.05 && unit > 3.0 * own, "sample {}: {own} against its own frame, {unit} the unit's", record.id);
+    }
+    assert!(lifted >= 3, "{lifted} lifted samples");
+    // Trains, exports, and the gate is fitted against each sample's own untouched frame: it
+    // misses no contact frame of the train split, and sees its untouched frames as such.
+    let device = model::backend::default_device();
+    let config = FitConfig { val_fraction: 0.25, ..config(&data, 1) };
+    let fitted = fit(&tmp.path().join("run"), &config, Start { model_config, weights: None }, &device, false).unwrap();
+    let bundle = tmp.path().join("bundle");
+    train::export::export_net(&fitted.net, &fitted.state, &bundle, &[]).unwrap();
+    let gate = model::bundle::BundleFile::read(&bundle).unwrap().contact_gate.expect("a fitted gate");
+    assert!(gate.train.contact > 0 && gate.train.untouched > 0 && gate.train.misses == 0, "{gate:?}");
+}
+
+/// A resumed run checks its data: a dataset whose manifest changed since the run began (a
+/// sample relabelled, removed or added) is refused, naming the file.
+#[test]
+fn a_resume_on_changed_data_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    unit_dataset(&data, 3, 8);
+    let device = model::backend::default_device();
+    let run = tmp.path().join("run");
+    let cfg = FitConfig { val_fraction: 0.25, ..config(&data, 1) };
+    fit(&run, &cfg, tiny_start(), &device, false).unwrap();
+    // Unchanged data resumes (here: a finished run, returned as it is).
+    fit(&run, &cfg, tiny_start(), &device, true).unwrap();
+    let mut manifest = formats::dataset::Manifest::load(&data).unwrap();
+    manifest.samples.pop();
+    formats::write_json(&data.join("manifest.json"), &manifest).unwrap();
+    let e = fit(&run, &cfg, tiny_start(), &device, true).err().expect("a resume on changed data");
+    let e = format!("{e:#}");
+    assert!(e.contains("manifest.json") && e.contains("changed since this run began"), "{e}");
 }

@@ -5,6 +5,7 @@ mod bench_calibrate;
 mod bench_finetune;
 mod bench_foreign;
 mod bench_loader;
+mod bench_looks;
 mod bench_model;
 mod bench_raycast;
 mod bench_render;
@@ -57,6 +58,9 @@ enum Bench {
     Table(bench_table::Args),
     /// Fine-tuning a unit-A model for unit B with 5/10/25 % of B's data, vs training on all of B.
     Finetune(bench_finetune::Args),
+    /// Training on random looks against the unit's own look, read zero-shot by cameras no run
+    /// trained on (the independent image model).
+    Looks(bench_looks::Args),
     /// Data loading against the train step: decoded samples/s beside train-step samples/s.
     Loader(bench_loader::Args),
 }
@@ -73,6 +77,7 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Foreign(args) } => bench_foreign::run(args),
         Command::Bench { what: Bench::Finetune(args) } => bench_finetune::run(args),
         Command::Bench { what: Bench::Loader(args) } => bench_loader::run(args),
+        Command::Bench { what: Bench::Looks(args) } => bench_looks::run(args),
         Command::Bench { what: Bench::Table(args) } => bench_table::run(args),
         Command::Quickstart(args) => quickstart::run(args),
         Command::Fuzz(args) => fuzz::run(args),

@@ -14,8 +14,11 @@
 //! Only what changes is shaded: the no-contact image of the unit is cached, and a frame re-shades
 //! just the pixels whose depth (or a neighbour's, through the normal) differs from zero.
 
+use std::sync::Arc;
+
 use glam::Vec3;
 use image::RgbImage;
+use sensor::frame::Chroma;
 
 use crate::unit::SensorUnit;
 
@@ -72,17 +75,25 @@ impl Capture {
     }
 }
 
-/// Renders images of one unit on one pixel grid; build once, render many frames.
-pub struct Renderer {
-    unit: SensorUnit,
+/// What a unit's geometry fixes on a pixel grid, whatever its look: shared by the renderers of
+/// one unit's looks.
+struct Geometry {
     grid: PixelGrid,
     dirs: Vec<Vec3>,
     seen: Vec<Seen>,
-    vignette: Vec<f32>,
+    /// Each sample's polar angle (clamped at the lens' edge) over the useful disk's.
+    theta_ratio: Vec<f32>,
     /// Which of the left, right, upper and lower neighbours (bits 0..4) of each sample the
     /// normal's differences use: one outside the grid or off the elastomer is replaced by the
     /// sample itself (a one-sided difference). Bits, not indices, to keep the table small.
     neighbours: Vec<u8>,
+}
+
+/// Renders images of one unit on one pixel grid; build once, render many frames.
+pub struct Renderer {
+    unit: SensorUnit,
+    geometry: Arc<Geometry>,
+    vignette: Vec<f32>,
     lighting: Lighting,
     /// The no-contact radiance as the lens delivers it (blurred).
     reference: Radiance,
@@ -96,7 +107,7 @@ pub struct Renderer {
 
 impl Renderer {
     pub fn new(unit: &SensorUnit, grid: PixelGrid) -> Self {
-        let (mut dirs, mut seen, mut vignette) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut dirs, mut seen, mut theta_ratio) = (Vec::new(), Vec::new(), Vec::new());
         let s = &unit.sensor;
         for i in 0..grid.len() {
             let (u, v) = grid.point(i);
@@ -110,8 +121,7 @@ impl Renderer {
                 Seen::Nothing
             });
             dirs.push(dir);
-            let t = (theta.min(unit.camera.lens_max_theta_rad) / s.max_theta_rad) as f32;
-            vignette.push((1.0 - unit.camera.vignetting as f32 * t * t).max(0.0));
+            theta_ratio.push((theta.min(unit.camera.lens_max_theta_rad) / s.max_theta_rad) as f32);
         }
         let (w, h) = (grid.width as usize, grid.height as usize);
         let neighbours = (0..grid.len())
@@ -128,10 +138,31 @@ impl Renderer {
                 bits
             })
             .collect();
+        Renderer::dress(unit, Arc::new(Geometry { grid, dirs, seen, theta_ratio, neighbours }))
+    }
+
+    /// The same unit's geometry under another look (`looks::random_look`): lights, coating,
+    /// gel and camera from `look`, the rays and pixel classes reused. Panics if `look`'s
+    /// sensor or lens is not this renderer's.
+    pub fn restyled(&self, look: &SensorUnit) -> Renderer {
+        assert!(
+            look.sensor == self.unit.sensor && look.camera.lens_max_theta_rad == self.unit.camera.lens_max_theta_rad,
+            "a look keeps the unit's geometry"
+        );
+        Renderer::dress(look, self.geometry.clone())
+    }
+
+    /// A renderer of `unit`'s look on `geometry` (computed for `unit`'s sensor and lens).
+    fn dress(unit: &SensorUnit, geometry: Arc<Geometry>) -> Renderer {
+        let s = &unit.sensor;
+        let g = &*geometry;
+        let vignetting = unit.camera.vignetting as f32;
+        let vignette: Vec<f32> = g.theta_ratio.iter().map(|&t| (1.0 - vignetting * t * t).max(0.0)).collect();
+        let (w, h) = (g.grid.width as usize, g.grid.height as usize);
         let lighting = Lighting::new(unit);
         let housing = unit.camera.housing_level as f32;
-        let reference = (0..grid.len())
-            .map(|i| match seen[i] {
+        let reference = (0..g.grid.len())
+            .map(|i| match g.seen[i] {
                 Seen::Housing => [housing * vignette[i]; 3],
                 _ => [0.0; 3],
             })
@@ -139,25 +170,25 @@ impl Renderer {
         // Millimetres of the surface between two neighbouring samples at the grid's centre.
         let centre = (h / 2) * w + w / 2;
         let mm_per_step =
-            (dirs[centre].angle_between(dirs[(centre + 1).min(grid.len() - 1)]) as f64 * s.radius_mm).max(1e-6);
+            (g.dirs[centre].angle_between(g.dirs[(centre + 1).min(g.grid.len() - 1)]) as f64 * s.radius_mm).max(1e-6);
+        let step_px = g.grid.step_px;
         let mut renderer = Renderer {
             unit: unit.clone(),
-            grid,
-            dirs,
-            seen,
+            geometry,
             vignette,
-            neighbours,
             lighting,
             reference,
             sharp_reference: Vec::new(),
             drape: Drape::new(unit.elastomer.drape_mm, mm_per_step),
-            blur: LensBlur::new(unit.camera.blur_px / grid.step_px),
+            blur: LensBlur::new(unit.camera.blur_px / step_px),
             tone: Tone::new(unit.camera.gamma),
         };
-        let elastomer: Vec<u32> =
-            (0..grid.len()).filter(|&i| renderer.seen[i] == Seen::Elastomer).map(|i| i as u32).collect();
+        let elastomer: Vec<u32> = (0..renderer.geometry.grid.len())
+            .filter(|&i| renderer.geometry.seen[i] == Seen::Elastomer)
+            .map(|i| i as u32)
+            .collect();
         let mut shaded = vec![[0.0; 3]; elastomer.len()];
-        renderer.shade_elastomer(&vec![0.0; grid.len()], &elastomer, &mut shaded);
+        renderer.shade_elastomer(&vec![0.0; renderer.geometry.grid.len()], &elastomer, &mut shaded);
         for (&i, v) in elastomer.iter().zip(shaded) {
             renderer.reference[i as usize] = v;
         }
@@ -174,7 +205,7 @@ impl Renderer {
     }
 
     pub fn grid(&self) -> &PixelGrid {
-        &self.grid
+        &self.geometry.grid
     }
 
     pub fn unit(&self) -> &SensorUnit {
@@ -183,7 +214,7 @@ impl Renderer {
 
     /// Unit ray direction of every sample point (zero beyond the lens).
     pub fn directions(&self) -> &[Vec3] {
-        &self.dirs
+        &self.geometry.dirs
     }
 
     /// The no-contact radiance through the lens, before noise.
@@ -206,8 +237,8 @@ impl Renderer {
     /// Left, right, upper and lower neighbour of sample `i` (itself where one is not used).
     #[inline(always)]
     fn neighbours_of(&self, i: usize) -> [usize; 4] {
-        let bits = self.neighbours[i];
-        let w = self.grid.width as usize;
+        let bits = self.geometry.neighbours[i];
+        let w = self.geometry.grid.width as usize;
         let pick = |k: u8, j: usize| if bits & (1 << k) != 0 { j } else { i };
         [pick(0, i.wrapping_sub(1)), pick(1, i + 1), pick(2, i.wrapping_sub(w)), pick(3, i + w)]
     }
@@ -216,8 +247,8 @@ impl Renderer {
     /// reference, and their values: the membrane's drape over the rigid depth, shaded, and the
     /// change blurred.
     fn frame_changes(&self, depth_mm: &[f32]) -> (Vec<u32>, Radiance) {
-        assert_eq!(depth_mm.len(), self.grid.len(), "depth map does not match the render grid");
-        let width = self.grid.width as usize;
+        assert_eq!(depth_mm.len(), self.geometry.grid.len(), "depth map does not match the render grid");
+        let width = self.geometry.grid.width as usize;
         let shape = match &self.drape {
             Some(drape) => drape.apply(depth_mm, width),
             None => std::borrow::Cow::Borrowed(depth_mm),
@@ -239,7 +270,7 @@ impl Renderer {
             let r = self.sharp_reference[i as usize];
             delta[i as usize - base] = [v[0] - r[0], v[1] - r[1], v[2] - r[2]];
         }
-        let (first_row, mut values) = blur.rows(&delta, y0, width, self.grid.height as usize);
+        let (first_row, mut values) = blur.rows(&delta, y0, width, self.geometry.grid.height as usize);
         let start = first_row * width;
         let reference = self.reference[start..start + values.len()].as_flattened();
         for (v, r) in values.as_flattened_mut().iter_mut().zip(reference) {
@@ -265,14 +296,14 @@ impl Renderer {
     fn dirty_elastomer(&self, depth_mm: &[f32]) -> Vec<u32> {
         const SELF: u8 = 1 << 4;
         const BLOCK: usize = 64;
-        let (n, w) = (depth_mm.len(), self.grid.width as usize);
+        let (n, w) = (depth_mm.len(), self.geometry.grid.width as usize);
         // mask[pad + i]: the neighbour bits sample i's normal reads if it is pressed, and SELF
         // if it is a pressed elastomer sample. A zero border of a row and one either side keeps
         // the stencil's reads inside.
         let pad = w + 1;
         let mut mask = vec![0u8; n + 2 * pad];
         for (((m, &d), &bits), &seen) in
-            mask[pad..pad + n].iter_mut().zip(depth_mm).zip(&self.neighbours).zip(&self.seen)
+            mask[pad..pad + n].iter_mut().zip(depth_mm).zip(&self.geometry.neighbours).zip(&self.geometry.seen)
         {
             let own = if seen == Seen::Elastomer { SELF } else { 0 };
             *m = if d != 0.0 { bits | own } else { 0 };
@@ -302,7 +333,7 @@ impl Renderer {
     /// noise drawn from `noise_seed` (`None`: no noise).
     pub fn to_image(&self, radiance: &Radiance, samples: u32, noise_seed: Option<u64>) -> RgbImage {
         let s = samples as usize;
-        let (w, h) = (self.grid.width / samples, self.grid.height / samples);
+        let (w, h) = (self.geometry.grid.width / samples, self.geometry.grid.height / samples);
         let mut noise = noise_seed.map(|seed| GaussianNoise::new(seed, &self.unit));
         let mut finish = |px: [f32; 3]| -> [u8; 3] {
             let px = match &mut noise {
@@ -315,7 +346,7 @@ impl Renderer {
             }
         };
         let mut img = RgbImage::new(w, h);
-        let gw = self.grid.width as usize;
+        let gw = self.geometry.grid.width as usize;
         let norm = 1.0 / (s * s) as f32;
         for (idx, px) in img.pixels_mut().enumerate() {
             let (x, y) = (idx % w as usize, idx / w as usize);
@@ -336,7 +367,10 @@ impl Renderer {
     /// What the camera's stream does to a finished frame.
     fn stream(&self, img: RgbImage) -> Capture {
         match self.unit.camera.jpeg_quality {
-            Some(quality) => Capture::Jpeg(sensor::frame::encode_jpeg_rgb(&img, quality)),
+            Some(quality) => {
+                let chroma = if self.unit.camera.chroma_420 { Chroma::Sub420 } else { Chroma::Full };
+                Capture::Jpeg(sensor::frame::encode_jpeg_rgb_with(&img, quality, chroma))
+            }
             None => Capture::Raw(img),
         }
     }
@@ -359,7 +393,7 @@ impl Renderer {
         const BLOCK: usize = 64;
         let (indices, shaded) = self.frame_changes(depth_mm);
         let mut noise = noise_seed.map(|seed| GaussianNoise::new(seed, &self.unit));
-        let mut bytes = vec![0u8; self.grid.len() * 3];
+        let mut bytes = vec![0u8; self.geometry.grid.len() * 3];
         let mut block = [[0f32; 3]; BLOCK];
         let mut next = 0;
         for (b, out) in bytes.chunks_mut(3 * BLOCK).enumerate() {
@@ -378,7 +412,7 @@ impl Renderer {
                 (None, Some(tone)) => out.iter_mut().zip(values).for_each(|(o, v)| *o = tone.apply(*v)),
             }
         }
-        self.stream(RgbImage::from_raw(self.grid.width, self.grid.height, bytes).expect("grid size"))
+        self.stream(RgbImage::from_raw(self.geometry.grid.width, self.geometry.grid.height, bytes).expect("grid size"))
     }
 }
 
@@ -521,7 +555,7 @@ mod tests {
                 dirty[i] = true;
                 r.neighbours_of(i).into_iter().for_each(|j| dirty[j] = true);
             }
-            (0..depth.len()).filter(|&i| dirty[i] && r.seen[i] == Seen::Elastomer).map(|i| i as u32).collect()
+            (0..depth.len()).filter(|&i| dirty[i] && r.geometry.seen[i] == Seen::Elastomer).map(|i| i as u32).collect()
         };
         let mut rng = formats::SplitMix64::new(7);
         for blobs in [0, 1, 5, 40] {
@@ -641,5 +675,26 @@ mod tests {
         let mean_diff = ia.as_raw().iter().zip(ib.as_raw()).map(|(&p, &q)| (p as f64 - q as f64).abs()).sum::<f64>()
             / ia.as_raw().len() as f64;
         assert!(mean_diff > 5.0, "units should look different: mean difference {mean_diff} grey levels");
+    }
+
+    #[test]
+    fn a_restyled_renderer_is_a_renderer_of_its_look() {
+        let unit = SensorUnit::from_seed(9, 25.0);
+        let base = Renderer::for_crop(&unit);
+        let look = crate::looks::random_look(&unit, 4);
+        let styled = base.restyled(&look);
+        let fresh = Renderer::for_crop(&look);
+        let n = base.grid().len();
+        let mut depth = vec![0.0; n];
+        let w = base.grid().width as usize;
+        for (i, d) in depth.iter_mut().enumerate() {
+            let (x, y) = ((i % w) as f32 - 300.0, (i / w) as f32 - 260.0);
+            *d = (1.2 - (x * x + y * y) / 3000.0).max(0.0);
+        }
+        assert_eq!(styled.capture(&depth, Some(3)), fresh.capture(&depth, Some(3)));
+        assert_eq!(styled.reference_image(1), fresh.reference_image(1));
+        // Restyling with the unit's own look gives the unit's renderer back.
+        assert_eq!(base.restyled(&unit).capture(&depth, Some(3)), base.capture(&depth, Some(3)));
+        assert_ne!(styled.reference_image(1), base.reference_image(1), "another look shows another image");
     }
 }

@@ -46,7 +46,7 @@ impl Renderer {
             let mut vig = [0f32; LANES];
             for (k, &i) in chunk.iter().enumerate() {
                 let i = i as usize;
-                let point = |j: usize| self.dirs[j] * (radius - depth_mm[j]);
+                let point = |j: usize| self.geometry.dirs[j] * (radius - depth_mm[j]);
                 // Named one by one: `array::map` here was left as a call per sample.
                 let [l, r, u, d] = self.neighbours_of(i);
                 let (left, right, up, down) = (point(l), point(r), point(u), point(d));

@@ -144,7 +144,8 @@ pub fn run(
         mailbox.close();
         result
     })?;
-    let counts = mailbox.counts();
+    let mut counts = mailbox.counts();
+    counts.problems.extend(source.unfinished());
     report.update(&records, &counts, started.elapsed());
     report.frames = records;
     if report.processed == 0

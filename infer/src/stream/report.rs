@@ -162,6 +162,9 @@ impl StreamReport {
             line("network ran", &self.network_latency_ms),
             line("gate (no contact)", &self.gated_latency_ms),
         ]
+        .into_iter()
+        .chain(self.problems.iter().map(|p| format!("  problem: {p}")))
+        .collect::<Vec<_>>()
         .join("\n")
     }
 

@@ -33,9 +33,21 @@ impl FolderSink {
     /// claimed (created, marked and held) here.
     pub fn new(out: &Path) -> Result<Self, formats::output::OutputError> {
         let claim = formats::output::claim_dir(out, formats::output::OutputKind::Stream, &[])?;
+        let failed = |path: PathBuf, e: std::io::Error| formats::output::OutputError { path, why: e.to_string() };
+        // An earlier stream's results go: the folder holds this stream's alone.
+        for file in ["stream.json", "frames.csv"] {
+            match std::fs::remove_file(out.join(file)) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(failed(out.join(file), e)),
+                _ => {}
+            }
+        }
         for sub in ["depth", "cloud"] {
-            std::fs::create_dir_all(out.join(sub))
-                .map_err(|e| formats::output::OutputError { path: out.join(sub), why: e.to_string() })?;
+            let dir = out.join(sub);
+            match std::fs::remove_dir_all(&dir) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(failed(dir, e)),
+                _ => {}
+            }
+            std::fs::create_dir_all(&dir).map_err(|e| failed(dir.clone(), e))?;
         }
         Ok(FolderSink { out: out.to_path_buf(), used: HashSet::new(), _claim: claim })
     }

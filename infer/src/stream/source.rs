@@ -45,6 +45,11 @@ pub trait Source: Send {
     fn delivery(&self) -> Delivery;
     /// For people: what is read.
     fn describe(&self) -> String;
+    /// Once the stream has ended: frames the source saw begin but never saw whole (a camera
+    /// program killed mid-write), each `name: why`, for the summary. Default: none.
+    fn unfinished(&self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// Whether `name` looks like a frame: `.png`, `.jpg` or `.jpeg` (any case), not hidden (atomic
@@ -165,6 +170,16 @@ impl Source for FolderSource {
 
     fn describe(&self) -> String {
         format!("new frames in {}", self.dir.display())
+    }
+
+    fn unfinished(&self) -> Vec<String> {
+        let names = self.new_names().unwrap_or_default();
+        names
+            .into_iter()
+            .map(|name| self.dir.join(name))
+            .filter(|path| std::fs::read(path).is_ok_and(|bytes| !formats::fs::image_bytes_complete(&bytes)))
+            .map(|path| format!("{}: never written whole while the stream ran (not read)", path.display()))
+            .collect()
     }
 }
 
