@@ -233,7 +233,9 @@ impl<'a> Run<'a> {
             }
         };
         if config.freeze_encoder {
-            net.encoder = net.encoder.no_grad();
+            // Frozen as PyTorch fine-tuning freezes: no gradients, and its batch norms read
+            // their running statistics and leave them as they were.
+            net.encoder = net.encoder.freeze();
         }
         let loss = DepthLossConfig::new()
             .with_dynamic_range(train.scale.range() as f64)

@@ -214,7 +214,8 @@ struct FinetuneArgs {
     /// The bundle to start from.
     #[arg(long)]
     from: PathBuf,
-    /// Train the decoder only.
+    /// Train the decoder only: the encoder's weights and its batch norms' running statistics
+    /// stay as they are (its batch norms normalise with them, as a frozen PyTorch encoder does).
     #[arg(long)]
     freeze_encoder: bool,
     /// Bundle folder to write at the end.

@@ -303,6 +303,17 @@ fn finetuning_with_a_frozen_encoder_changes_only_the_decoder() {
     let (b, _) = model::bundle::load_bundle(&tuned, &device).unwrap();
     let v = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
     assert_eq!(v(a.encoder.conv0.weight.val()), v(b.encoder.conv0.weight.val()), "a frozen encoder keeps its weights");
+    // ... and its batch norms' running statistics: at the stem, in every dense layer, at the end.
+    let v1 = |t: burn::tensor::Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap();
+    let norms = |net: &model::DenseDepth| -> Vec<Vec<f32>> {
+        let e = &net.encoder;
+        let mut all: Vec<&burn::nn::BatchNorm> = vec![e.norm0.as_ref().unwrap(), &e.norm5];
+        for block in [&e.denseblock1, &e.denseblock2, &e.denseblock3, &e.denseblock4] {
+            all.extend(block.layers.iter().map(|l| &l.norm1));
+        }
+        all.iter().flat_map(|n| [v1(n.running_mean.value()), v1(n.running_var.value())]).collect()
+    };
+    assert_eq!(norms(&a), norms(&b), "a frozen encoder keeps its batch norms' running statistics");
     assert_ne!(v(a.decoder.conv3.weight.val()), v(b.decoder.conv3.weight.val()), "the decoder learns");
 }
 
@@ -502,17 +513,23 @@ fn samples_under_random_looks_are_read_against_their_own_untouched_frames() {
     assert!(gate.train.contact > 0 && gate.train.untouched > 0 && gate.train.misses == 0, "{gate:?}");
 }
 
+/// A finished one-epoch run in `dir` on 8 samples of unit 3: the data folder, the run folder
+/// and its settings.
+fn finished_run(dir: &Path) -> (PathBuf, PathBuf, FitConfig) {
+    let data = dir.join("data");
+    unit_dataset(&data, 3, 8);
+    let (run, cfg) = (dir.join("run"), FitConfig { val_fraction: 0.25, ..config(&data, 1) });
+    fit(&run, &cfg, tiny_start(), &model::backend::default_device(), false).unwrap();
+    (data, run, cfg)
+}
+
 /// A resumed run checks its data: a dataset whose manifest changed since the run began (a
 /// sample relabelled, removed or added) is refused, naming the file.
 #[test]
 fn a_resume_on_changed_data_is_refused() {
     let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    unit_dataset(&data, 3, 8);
+    let (data, run, cfg) = finished_run(tmp.path());
     let device = model::backend::default_device();
-    let run = tmp.path().join("run");
-    let cfg = FitConfig { val_fraction: 0.25, ..config(&data, 1) };
-    fit(&run, &cfg, tiny_start(), &device, false).unwrap();
     // Unchanged data resumes (here: a finished run, returned as it is).
     fit(&run, &cfg, tiny_start(), &device, true).unwrap();
     let mut manifest = formats::dataset::Manifest::load(&data).unwrap();
@@ -521,4 +538,20 @@ fn a_resume_on_changed_data_is_refused() {
     let e = fit(&run, &cfg, tiny_start(), &device, true).err().expect("a resume on changed data");
     let e = format!("{e:#}");
     assert!(e.contains("manifest.json") && e.contains("changed since this run began"), "{e}");
+}
+
+/// `train export` of a run that a `fit` still holds (its lock) is refused, not exported at
+/// whatever step the run last saved; once the run is free, it exports.
+#[test]
+fn a_run_still_training_is_not_exported() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (_, run, _) = finished_run(tmp.path());
+    let device = model::backend::default_device();
+    let held = formats::output::claim_dir(&run, formats::output::OutputKind::Run, &[]).unwrap();
+    let out = tmp.path().join("bundle");
+    let e = train::export::export_run(&run, &out, &device, model::bundle::SafetensorsKeys::Burn).unwrap_err();
+    let e = format!("{e:#}");
+    assert!(e.contains("another process") && !out.exists(), "{e}");
+    drop(held);
+    train::export::export_run(&run, &out, &device, model::bundle::SafetensorsKeys::Burn).unwrap();
 }

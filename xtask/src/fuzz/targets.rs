@@ -114,6 +114,20 @@ pub fn build_targets(work: &Path, kit: Option<&Path>) -> Result<Vec<Target>> {
             check: Arc::new(bundle_check),
         },
         Target {
+            name: "bundle-folder-weights",
+            file: model::bundle::WEIGHTS_SAFETENSORS,
+            shape: Shape::Binary,
+            seeds: vec![read(&bundle.join(model::bundle::WEIGHTS_SAFETENSORS))?],
+            check: bundle_folder_check(&bundle, model::bundle::WEIGHTS_SAFETENSORS)?,
+        },
+        Target {
+            name: "bundle-folder-reference",
+            file: model::bundle::REFERENCE_PNG,
+            shape: Shape::Png,
+            seeds: vec![read(&bundle.join(model::bundle::REFERENCE_PNG))?],
+            check: bundle_folder_check(&bundle, model::bundle::REFERENCE_PNG)?,
+        },
+        Target {
             name: "checkpoint-state-json",
             file: "state.json",
             shape: Shape::Text,
@@ -235,6 +249,36 @@ fn bundle_check(path: &Path, bytes: &[u8]) -> Outcome {
         Err(e) => refused(e),
         Ok(b) => round_trip(&b, |bytes| BundleFile::parse(path, bytes).map_err(|e| e.to_string())),
     }
+}
+
+/// A bundle folder with its file `name` replaced by the mutated bytes, loaded: whole (the
+/// bytes are the exported ones) or refused naming the file, never loaded with other bytes.
+fn bundle_folder_check(bundle: &Path, name: &'static str) -> Result<Check> {
+    let files: Vec<(std::ffi::OsString, Vec<u8>)> = std::fs::read_dir(bundle)?
+        .map(|e| {
+            let e = e?;
+            Ok((e.file_name(), read(&e.path())?))
+        })
+        .collect::<Result<_>>()?;
+    let original = read(&bundle.join(name))?;
+    Ok(Arc::new(move |_path: &Path, bytes: &[u8]| {
+        let tmp = match tempfile::tempdir() {
+            Ok(t) => t,
+            Err(e) => return Outcome::Invalid(format!("no temporary folder: {e}")),
+        };
+        let dir = tmp.path().join("bundle");
+        let copied = std::fs::create_dir(&dir).and_then(|()| {
+            files.iter().try_for_each(|(n, b)| std::fs::write(dir.join(n), if n == name { bytes } else { b }))
+        });
+        if let Err(e) = copied {
+            return Outcome::Invalid(format!("cannot copy the bundle: {e}"));
+        }
+        match model::bundle::load_bundle(&dir, &model::backend::default_device()) {
+            Err(e) => refused(e),
+            Ok(_) if bytes == original.as_slice() => Outcome::Accepted,
+            Ok(_) => Outcome::Invalid(format!("a bundle whose {name} was edited loaded")),
+        }
+    }))
 }
 
 fn state_check(path: &Path, bytes: &[u8]) -> Outcome {
