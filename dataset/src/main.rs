@@ -1,5 +1,7 @@
 //! `dataset`: generate ray-cast ground truth for DenseTact sensors.
 
+#![deny(unsafe_code)]
+
 use std::path::PathBuf;
 use std::process::ExitCode;
 

@@ -1,6 +1,8 @@
 //! Light inference from an exported bundle: depth maps, contact masks and point clouds from
 //! camera frames. Depends on the network and the bundle format only: no autodiff, no training.
 
+#![deny(unsafe_code)]
+
 pub mod bench;
 pub mod cloud;
 pub mod colour;

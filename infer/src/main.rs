@@ -1,5 +1,7 @@
 //! `infer`: depth maps, contact and point clouds from camera frames with an exported bundle.
 
+#![deny(unsafe_code)]
+
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;

@@ -1,5 +1,7 @@
 //! `train`: fit, resume, fine-tune and export DenseTact depth models.
 
+#![deny(unsafe_code)]
+
 use std::path::PathBuf;
 use std::process::ExitCode;
 

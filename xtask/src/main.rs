@@ -1,6 +1,8 @@
 //! Project automation: `cargo xtask quickstart` (the README's main command) and the benchmarks
 //! (`cargo xtask bench ...`).
 
+#![deny(unsafe_code)]
+
 mod bench_calibrate;
 mod bench_finetune;
 mod bench_foreign;
