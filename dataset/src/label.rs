@@ -22,7 +22,7 @@ use formats::session::{CaptureLog, reference_frame};
 use formats::write_json;
 use image::RgbImage;
 use rayon::prelude::*;
-use sensor::frame::{check_channel_order, encode_png_rgb, read_crop};
+use sensor::frame::{FrameError, check_channel_order, crop, decode, encode_png_rgb, read_crop};
 use sensor::gate::GateFrame;
 use sensor::{DepthMap, Sensor};
 use serde::{Deserialize, Serialize};
@@ -61,6 +61,9 @@ pub struct LabelReport {
     pub manifest: Manifest,
     pub labelled: usize,
     pub resumed: usize,
+    /// Lines of rows an earlier run labelled that changed since (the row, its line or its
+    /// frame's bytes), labelled again.
+    pub relabelled: Vec<usize>,
     pub seconds: f64,
     /// Rows left out, each `captures.csv: line N: problem`.
     pub skipped: Vec<String>,
@@ -127,8 +130,10 @@ impl Labeller<'_> {
             kit: self.kit.source.clone(),
             rows: log.rows.len() as u32,
         };
-        let file =
-            LabelFile { format_version: DATASET_FORMAT_VERSION, sensor: self.sensor.clone(), params: params.clone() };
+        // The log may grow (or change) between runs: what the folder is fixed to is the session,
+        // the kit and the sensor, and each row is checked by its digest.
+        let source = LabelSource { session: params.session.clone(), kit: params.kit.clone() };
+        let file = LabelFile { format_version: DATASET_FORMAT_VERSION, sensor: self.sensor.clone(), params: source };
         let kit = std::path::Path::new(&self.kit.source);
         let mut inputs = vec![self.session.as_path()];
         inputs.extend((self.kit.source != "procedural").then_some(kit));
@@ -152,30 +157,17 @@ impl Labeller<'_> {
             |r: &SampleRecord| std::iter::once(&r.depth).chain(&r.image).map(|f| out.join(f)).collect(),
             |id, r: &SampleRecord| r.id == id,
         )?;
-        // A row edited, or a frame file replaced, since the earlier run: labelled again.
+        let by_id: BTreeMap<u32, &Job> = jobs.iter().map(|j| (j.id, j)).collect();
+        // A row edited or moved, or a frame file replaced, since the earlier run: labelled again.
         let mut done = done;
-        let stale: Vec<u32> = jobs
-            .par_iter()
-            .filter(|j| done.contains_key(&j.id))
-            .filter_map(|j| {
-                let recorded = done[&j.id].capture.as_ref().and_then(|c| c.sha256.as_deref());
-                // A frame that cannot be read now is labelled again, and named as a bad row.
-                let now = self.row_digest(&j.capture).ok();
-                (recorded.is_none() || recorded != now.as_deref()).then_some(j.id)
-            })
-            .collect();
-        if !stale.is_empty() {
-            let lines: Vec<String> =
-                jobs.iter().filter(|j| stale.contains(&j.id)).map(|j| j.capture.line.to_string()).collect();
-            eprintln!(
-                "{} rows changed since the earlier run (their line or frame; lines {}): labelled again",
-                stale.len(),
-                lines.join(", ")
-            );
-            for id in &stale {
-                done.remove(id);
-            }
-        }
+        let stale = resumable::drop_changed(&mut done, |id, r: &SampleRecord| {
+            let Some(recorded) = r.capture.as_ref() else { return false };
+            // A frame that cannot be read now is labelled again, and named as a bad row.
+            let c = &by_id[&id].capture;
+            let now = std::fs::read(self.session.join(&c.frame)).ok().map(|bytes| row_digest(c, &bytes));
+            recorded.line == c.line && recorded.sha256.is_some() && recorded.sha256 == now
+        });
+        let relabelled: Vec<usize> = stale.iter().map(|id| by_id[id].capture.line).collect();
         let resumed = done.len();
         let todo: Vec<&Job> = jobs.iter().filter(|j| !done.contains_key(&j.id)).collect();
         let rays = RayBundle::new(self.sensor);
@@ -198,6 +190,9 @@ impl Labeller<'_> {
                 Err(e) => refuse(job.capture.line, row_error(job.capture.line, format!("{e:#}")))?,
             }
         }
+        // Samples of rows the log no longer has, or that are bad now, are removed: the folder
+        // holds what a fresh labelling of the log as it stands writes.
+        resumable::remove_others(out, &["samples", "depth", "images"], |id| records.contains_key(&id))?;
         let samples: Vec<SampleRecord> = records.into_values().collect();
         if samples.is_empty() {
             bail!("{}: no row could be labelled", log.path.display());
@@ -245,6 +240,7 @@ impl Labeller<'_> {
             manifest,
             labelled,
             resumed,
+            relabelled,
             seconds: start.elapsed().as_secs_f64(),
             skipped: skipped.into_iter().map(|(_, e)| e).collect(),
             no_contact,
@@ -264,15 +260,18 @@ impl Labeller<'_> {
     ) -> Result<Result<SampleRecord, anyhow::Error>> {
         let c = &job.capture;
         let frame_path = self.session.join(&c.frame);
-        let checked = read_crop(&frame_path, self.sensor)
+        // Read once: the bytes that are hashed are the bytes that are labelled.
+        let bytes = match std::fs::read(&frame_path) {
+            Ok(bytes) => bytes,
+            Err(source) => return Ok(Err(FrameError::Io { path: frame_path, source }.into())),
+        };
+        let digest = row_digest(c, &bytes);
+        let checked = decode(&frame_path, &bytes)
+            .and_then(|img| crop(&frame_path, img, self.sensor))
             .and_then(|crop| check_channel_order(&frame_path, &crop, reference, mask).map(|()| crop));
         let crop = match checked {
             Ok(crop) => crop,
             Err(e) => return Ok(Err(e.into())),
-        };
-        let digest = match self.row_digest(c) {
-            Ok(d) => d,
-            Err(e) => return Ok(Err(e)),
         };
         let scene = match build_scene(self.kit, job.trial, c.pose) {
             Ok(scene) => scene,
@@ -307,23 +306,28 @@ impl Labeller<'_> {
     }
 }
 
-impl Labeller<'_> {
-    /// SHA-256 of a row (all but its line, which moves when rows above it are added) and its
-    /// frame file's bytes.
-    fn row_digest(&self, c: &formats::session::Capture) -> Result<String> {
-        let path = self.session.join(&c.frame);
-        let frame = std::fs::read(&path).with_context(|| format!("{}: cannot read the frame", path.display()))?;
-        let row = serde_json::to_vec(&formats::session::Capture { line: 0, ..c.clone() })?;
-        Ok(formats::fs::sha256_hex(&[row.as_slice(), b"\n", frame.as_slice()].concat()))
-    }
+/// SHA-256 of a row (all but its line, which moves when rows above it are added) and its
+/// frame file's bytes.
+fn row_digest(c: &formats::session::Capture, frame: &[u8]) -> String {
+    let row = serde_json::to_vec(&formats::session::Capture { line: 0, ..c.clone() }).expect("a row serialises");
+    formats::fs::sha256_hex(&[row.as_slice(), b"\n", frame].concat())
 }
 
-/// `label.json`: the sensor and where the rows came from, fixed for the life of the folder.
+/// `label.json`: the sensor and where the rows come from, fixed for the life of the folder.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LabelFile {
     pub format_version: u32,
     pub sensor: Sensor,
-    pub params: LabelParams,
+    pub params: LabelSource,
+}
+
+/// The session and the kit a labelled folder is made from (absolute paths, so that a resume
+/// from another working folder is the same run). The log's rows are not fixed: rows added,
+/// edited or removed since an earlier run are labelled or removed on resume.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LabelSource {
+    pub session: String,
+    pub kit: String,
 }
 
 /// The parameters file of a labelled dataset.
@@ -364,6 +368,13 @@ pub fn report_lines(r: &LabelReport) -> Vec<String> {
             s.samples,
             100.0 * s.mean_contact_fraction,
             s.mean_contact_depth_mm
+        ));
+    }
+    if !r.relabelled.is_empty() {
+        lines.push(format!(
+            "{} rows changed since the earlier run (the row, its line or its frame; lines {}): labelled again",
+            r.relabelled.len(),
+            list_lines(r.relabelled.iter().copied())
         ));
     }
     if !r.skipped.is_empty() {

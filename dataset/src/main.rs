@@ -205,8 +205,7 @@ fn generate(args: GenerateArgs) -> Result<()> {
     sensor.validate()?;
     let renderer = unit.as_ref().map(Renderer::for_crop);
     let kit = match &args.kit {
-        Some(dir) => Kit::load_dir_scaled(dir, args.kit_scale)
-            .with_context(|| format!("loading the kit in {}", dir.display()))?,
+        Some(dir) => load_kit(dir, args.kit_scale)?,
         None => Kit::procedural(sensor.radius_mm as f32),
     };
     let b_axis_deg = match args.b_deg {
@@ -279,15 +278,26 @@ fn generate(args: GenerateArgs) -> Result<()> {
     Ok(())
 }
 
+/// The kit in `dir`, known by its absolute path (recorded in what is made from it, so that a
+/// run resumes from any working folder).
+fn load_kit(dir: &std::path::Path, scale: f32) -> Result<Kit> {
+    let dir = absolute(dir, "--kit")?;
+    Kit::load_dir_scaled(&dir, scale).with_context(|| format!("loading the kit in {}", dir.display()))
+}
+
+/// `path` made absolute and free of `..` and links; `flag` names it if it does not exist.
+fn absolute(path: &std::path::Path, flag: &str) -> Result<std::path::PathBuf> {
+    std::fs::canonicalize(path).with_context(|| format!("{}: cannot open the folder of {flag}", path.display()))
+}
+
 fn label(args: LabelArgs) -> Result<()> {
     let sensor = Sensor::load_json(&args.sensor)?;
     let kit = match args.kit.as_str() {
         "procedural" => Kit::procedural(sensor.radius_mm as f32),
-        dir => Kit::load_dir_scaled(std::path::Path::new(dir), args.kit_scale)
-            .with_context(|| format!("loading the kit in {dir}"))?,
+        dir => load_kit(std::path::Path::new(dir), args.kit_scale)?,
     };
     let labeller = Labeller {
-        session: args.session.clone(),
+        session: absolute(&args.session, "--session")?,
         out: args.out.clone(),
         sensor: &sensor,
         kit: &kit,

@@ -107,6 +107,41 @@ pub(crate) fn finished<R: DeserializeOwned>(
     Ok(done)
 }
 
+/// Removes from `done` the items an earlier run finished whose inputs or files changed since
+/// (`current(id, &record)` false: a row edited, a frame replaced), checked on all cores, and
+/// returns their ids in order: they are made again, so that a resumed run gives what a fresh
+/// run of the folder's inputs as they now stand gives.
+pub(crate) fn drop_changed<R: Sync>(done: &mut BTreeMap<u32, R>, current: impl Fn(u32, &R) -> bool + Sync) -> Vec<u32> {
+    let changed: Vec<u32> = done.par_iter().filter(|(id, r)| !current(**id, r)).map(|(id, _)| *id).collect();
+    for id in &changed {
+        done.remove(id);
+    }
+    changed
+}
+
+/// Removes, in `dir`'s folders `subs`, the items' files (named by their id, `NNNNNN.*`) whose
+/// id `keep` refuses: what an earlier run made for items this run no longer has. Other files
+/// are left alone.
+pub(crate) fn remove_others(dir: &Path, subs: &[&str], keep: impl Fn(u32) -> bool) -> Result<()> {
+    for sub in subs {
+        let d = dir.join(sub);
+        let entries = std::fs::read_dir(&d).with_context(|| format!("{}: cannot list", d.display()))?;
+        for entry in entries {
+            let path = entry.with_context(|| format!("{}: cannot list", d.display()))?.path();
+            let id = path
+                .file_stem()
+                .and_then(|s| s.to_str())
+                .filter(|s| s.len() == 6 && s.bytes().all(|b| b.is_ascii_digit()));
+            if let Some(id) = id.and_then(|s| s.parse::<u32>().ok())
+                && !keep(id)
+            {
+                std::fs::remove_file(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Makes the items `todo` on all cores, with progress; the first error stops the run.
 pub(crate) fn make_all<R: Send>(todo: &[u32], label: &str, make: impl Fn(u32) -> Result<R> + Sync) -> Result<Vec<R>> {
     let progress = Progress::new(label, todo.len() as u64);

@@ -8,7 +8,8 @@
 //! DIR/reference.png         a frame with nothing touching the sensor (or .jpg)
 //! DIR/sawtooth.png          the unit's saw-tooth calibration frame (or .jpg)
 //! DIR/.simulation/          the simulation's own files, which a real session does not have:
-//!                           generator.json (settings), rows/ (progress), truth.json (the
+//!                           generator.json (settings), rows/ (progress: each finished row
+//!                           and its frame's SHA-256), truth.json (the
 //!                           unit's true sensor description, to measure a calibration against)
 //! ```
 //!
@@ -117,6 +118,14 @@ impl SessionCamera for RendererCamera<'_> {
     }
 }
 
+/// `.simulation/rows/NNNNNN.json`: a finished frame's row, and the SHA-256 of the frame file as
+/// written, so that a resumed session remakes a frame changed since.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct SimulatedRow {
+    capture: Capture,
+    frame_sha256: String,
+}
+
 /// A simulated session to write (or resume).
 pub struct SessionWriter<'a> {
     pub out: PathBuf,
@@ -155,13 +164,20 @@ impl SessionWriter<'_> {
         // Every frame of one camera has the same extension; an empty depth map's frame tells it.
         let (ext, _) = self.camera.frame(&vec![0f32; sensor.crop_len()], 0);
         let (out, rows) = (&self.out, sim.join("rows"));
-        let done = resumable::finished(
+        let mut done = resumable::finished(
             "frames",
             0..self.params.count,
             |id| rows.join(format!("{}.json", sample_name(id))),
-            |c: &Capture| vec![out.join(&c.frame)],
-            |id, c: &Capture| c.frame == format!("frames/{}.{ext}", sample_name(id)),
+            |r: &SimulatedRow| vec![out.join(&r.capture.frame)],
+            |id, r: &SimulatedRow| r.capture.frame == format!("frames/{}.{ext}", sample_name(id)),
         )?;
+        // A frame edited or replaced since the earlier run is made again.
+        let changed = resumable::drop_changed(&mut done, |_, r: &SimulatedRow| {
+            std::fs::read(out.join(&r.capture.frame)).is_ok_and(|b| formats::fs::sha256_hex(&b) == r.frame_sha256)
+        });
+        if !changed.is_empty() {
+            eprintln!("{} frames changed since the earlier run: made again", changed.len());
+        }
         let todo: Vec<u32> = (0..self.params.count).filter(|id| !done.contains_key(id)).collect();
         let rays = RayBundle::new(sensor);
         let made = resumable::make_all(&todo, "simulating frames", |id| {
@@ -174,16 +190,15 @@ impl SessionWriter<'_> {
             write_atomic_unsynced(&self.out.join(&frame), &bytes)?;
             let capture =
                 Capture { line: 0, frame, split: trial.split, trial: trial.number, pose, extra: Default::default() };
-            write_atomic_unsynced(
-                &rows.join(format!("{}.json", sample_name(id))),
-                &serde_json::to_vec_pretty(&capture)?,
-            )?;
-            Ok((id, capture))
+            let row = SimulatedRow { capture, frame_sha256: formats::fs::sha256_hex(&bytes) };
+            write_atomic_unsynced(&rows.join(format!("{}.json", sample_name(id))), &serde_json::to_vec_pretty(&row)?)?;
+            Ok((id, row))
         })?;
         let made_count = made.len();
         let mut all = done;
         all.extend(made);
-        let captures: Vec<Capture> = all.into_values().enumerate().map(|(k, c)| Capture { line: k + 2, ..c }).collect();
+        let captures: Vec<Capture> =
+            all.into_values().enumerate().map(|(k, r)| Capture { line: k + 2, ..r.capture }).collect();
         let (ext, reference) = self.camera.reference(SplitMix64::new(self.params.seed).next_u64());
         write_atomic(&self.out.join(format!("reference.{ext}")), &reference)?;
         let (ext, bytes) = self.camera.sawtooth();

@@ -65,6 +65,34 @@ fn killed_and_resumed_run_equals_an_uninterrupted_one() {
     assert!(manifest.summary.values().all(|s| s.samples > 0 && s.mean_contact_fraction > 0.0));
 }
 
+/// Kill anywhere, edit nothing, resume = uninterrupted: a generator run (random looks, so every
+/// folder a dataset can have) killed -9 eight times at seeded moments across the run, each time
+/// run again, writes exactly the uninterrupted run's files.
+#[test]
+fn a_generator_killed_anywhere_resumes_to_the_uninterrupted_dataset() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let args = |out: &Path| {
+        let out = out.to_str().unwrap();
+        common::kill::strings(&[
+            "generate",
+            "--out",
+            out,
+            "--count",
+            "120",
+            "--seed",
+            "11",
+            "--unit",
+            "2",
+            "--random-looks",
+        ])
+    };
+    let span = common::kill::timed_run(BIN, &args(&a));
+    let kills = common::kill::kill_anywhere(BIN, &args(&b), &args(&b), 8, span, 21);
+    assert!(kills.mid_run >= 1, "no kill landed mid-run: {kills:?}");
+    common::assert_same_files(&a, &b, &format!("after the kills {kills:?}"));
+}
+
 #[test]
 fn bad_arguments_and_mismatched_folders_fail_clearly() {
     let tmp = tempfile::tempdir().unwrap();

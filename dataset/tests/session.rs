@@ -26,6 +26,10 @@ fn ok(r: Output) -> String {
     String::from_utf8_lossy(&r.stdout).into_owned()
 }
 
+fn strings(args: &[&str]) -> Vec<String> {
+    common::kill::strings(args)
+}
+
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
@@ -211,18 +215,15 @@ fn a_labelling_killed_at_any_moment_resumes_to_the_same_dataset() {
     ok(dataset(&args));
     let sensor = truth(&session);
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
-    ok(label(&session, &sensor, &a, &[]));
-    let mut child =
-        common::spawn_until(BIN, &["label", "--session", s(&session), "--sensor", s(&sensor), "--out", s(&b)], &b, 5);
-    child.kill().unwrap();
-    child.wait().unwrap();
-    assert!(!b.join("manifest.json").exists(), "the labelling finished before it could be killed");
+    // Kill anywhere, edit nothing, resume = uninterrupted: six kills -9 at seeded moments.
+    let args = |out: &Path| strings(&["label", "--session", s(&session), "--sensor", s(&sensor), "--out", s(out)]);
+    let span = common::kill::timed_run(BIN, &args(&a));
+    let kills = common::kill::kill_anywhere(BIN, &args(&b), &args(&b), 6, span, 8);
+    assert!(kills.mid_run >= 1, "no kill landed mid-run: {kills:?}");
+    common::assert_same_files(&a, &b, &format!("a labelling after the kills {kills:?}"));
+    std::fs::remove_file(b.join("manifest.json")).unwrap(); // as a kill before the end leaves it
     let report = ok(label(&session, &sensor, &b, &[]));
-    assert!(report.contains("from an earlier run"), "{report}");
-    assert!(
-        files(&a, &DATASET_FILES) == files(&b, &DATASET_FILES),
-        "a resumed labelling writes exactly the uninterrupted one's files"
-    );
+    assert!(report.contains("(0 new, 120 from an earlier run)"), "{report}");
     // Lifted frames: no contact in the ground truth, and none in the image either.
     assert!(report.contains("have no contact"), "{report}");
     assert!(!report.contains("logging slip"), "{report}");
@@ -235,6 +236,27 @@ fn a_labelling_killed_at_any_moment_resumes_to_the_same_dataset() {
     assert!(!r.status.success());
     let e = String::from_utf8_lossy(&r.stderr);
     assert!(e.contains("label.json") && e.contains("centre_u_px"), "{e}");
+}
+
+/// Kill anywhere, edit nothing, resume = uninterrupted, for a simulated session; and a frame
+/// edited since the earlier run is made again.
+#[test]
+fn a_simulated_session_killed_anywhere_resumes_to_the_uninterrupted_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let args = |out: &Path| strings(&["generate", "--session", s(out), "--count", "60", "--seed", "5", "--unit", "3"]);
+    let span = common::kill::timed_run(BIN, &args(&a));
+    let kills = common::kill::kill_anywhere(BIN, &args(&b), &args(&b), 6, span, 12);
+    assert!(kills.mid_run >= 1, "no kill landed mid-run: {kills:?}");
+    common::assert_same_files(&a, &b, &format!("a session after the kills {kills:?}"));
+    // A frame replaced by another, and the log gone as a kill before the end leaves it.
+    std::fs::copy(b.join("frames/000009.png"), b.join("frames/000004.png")).unwrap();
+    std::fs::remove_file(b.join(formats::session::CAPTURES_CSV)).unwrap();
+    let r = dataset(&args(&b).iter().map(String::as_str).collect::<Vec<_>>());
+    let e = String::from_utf8_lossy(&r.stderr).into_owned();
+    ok(r);
+    assert!(e.contains("1 frames changed"), "{e}");
+    common::assert_same_files(&a, &b, "a session whose frame was replaced, resumed");
 }
 
 #[test]
@@ -309,10 +331,8 @@ fn a_resumed_labelling_relabels_rows_and_frames_that_changed() {
     });
     std::fs::copy(session.join("frames/000009.png"), session.join("frames/000006.png")).unwrap();
     std::fs::remove_file(resumed.join("manifest.json")).unwrap(); // as a kill before the end leaves it
-    let r = label(&session, &sensor, &resumed, &[]);
-    let e = String::from_utf8_lossy(&r.stderr).into_owned();
-    ok(r);
-    assert!(e.contains("2 rows changed") && e.contains("lines 4, 8"), "{e}");
+    let report = ok(label(&session, &sensor, &resumed, &[]));
+    assert!(report.contains("2 rows changed") && report.contains("lines 4, 8"), "{report}");
     ok(label(&session, &sensor, &fresh, &[]));
     assert!(
         files(&resumed, &DATASET_FILES) == files(&fresh, &DATASET_FILES),
@@ -320,4 +340,20 @@ fn a_resumed_labelling_relabels_rows_and_frames_that_changed() {
     );
     let after = Manifest::load(&resumed).unwrap().samples[2].scene.pose.z_travel_mm;
     assert!((after - before - 0.5).abs() < 1e-4, "line 4's z: {before} then {after}");
+
+    // Rows removed (line 10, whose row goes to the end, and the last line): the rows below
+    // move up, and the log is a row shorter. The resumed folder is again the fresh labelling of
+    // the log as it stands, with nothing left of the sample the log no longer has.
+    let text = std::fs::read_to_string(session.join(formats::session::CAPTURES_CSV)).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    let moved = lines.remove(9);
+    lines.pop();
+    lines.push(moved);
+    std::fs::write(session.join(formats::session::CAPTURES_CSV), lines.join("\n") + "\n").unwrap();
+    std::fs::remove_file(resumed.join("manifest.json")).unwrap();
+    let report = ok(label(&session, &sensor, &resumed, &[]));
+    assert!(report.contains("15 samples") && report.contains("rows changed"), "{report}");
+    let fresh = tmp.path().join("fresh2");
+    ok(label(&session, &sensor, &fresh, &[]));
+    common::assert_same_files(&resumed, &fresh, "a log with a row removed and one changed, resumed");
 }

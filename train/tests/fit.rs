@@ -2,14 +2,15 @@
 //! non-finite steps and bad samples.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
 
 use burn::tensor::{Distribution, Tensor};
 use train::{FitConfig, OnBadData, RunOptions, Start, fit, fit_with};
 
 mod common;
 use common::{tiny_dataset, unit_dataset};
+#[path = "../../dataset/tests/common/kill.rs"]
+mod kill;
 
 const BIN: &str = env!("CARGO_BIN_EXE_train");
 
@@ -183,30 +184,15 @@ fn a_run_killed_at_any_moment_resumes_to_the_same_weights() {
     let data = tmp.path().join("data");
     tiny_dataset(&data);
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
-    let r = Command::new(BIN).args(fit_args(&data, &a)).output().unwrap();
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-
-    // Kill -9 once a mid-epoch checkpoint exists.
-    let mut child =
-        Command::new(BIN).args(fit_args(&data, &b)).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
-    let start = Instant::now();
-    while !b.join("checkpoint/state.json").is_file() {
-        assert!(start.elapsed() < Duration::from_secs(120), "no checkpoint appeared");
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    std::thread::sleep(Duration::from_millis(150));
-    child.kill().unwrap();
-    child.wait().unwrap();
-    // The kill must have landed mid-run, or the resume below proves nothing.
-    let ckpt = train::checkpoint::latest(&b).expect("a checkpoint survives the kill");
-    let state = train::checkpoint::read_state(&ckpt).unwrap();
-    assert!(state.epoch < 3, "the run finished before it could be killed: {state:?}");
+    // Kill anywhere, edit nothing, resume = uninterrupted: four kills -9 at seeded moments
+    // (before the first checkpoint too, where --resume starts afresh), each run resumed.
+    let span = kill::timed_run(BIN, &fit_args(&data, &a));
+    let resume = |run: &Path| [fit_args(&data, run), vec!["--resume".to_string()]].concat();
+    let kills = kill::kill_anywhere(BIN, &fit_args(&data, &b), &resume(&b), 4, span, 3);
+    assert!(kills.mid_run >= 1, "no kill landed mid-run: {kills:?}");
     let r = Command::new(BIN).args(fit_args(&data, &b)).output().unwrap();
     assert!(!r.status.success(), "a second run into the same folder without --resume is refused");
     assert!(String::from_utf8_lossy(&r.stderr).contains("--resume"));
-    let r = Command::new(BIN).args(fit_args(&data, &b)).arg("--resume").output().unwrap();
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-
     let (ba, bb) = (tmp.path().join("bundle-a"), tmp.path().join("bundle-b"));
     export(&a, &ba);
     export(&b, &bb);
@@ -293,12 +279,12 @@ fn finetuning_with_a_frozen_encoder_changes_only_the_decoder() {
 
     let (run, tuned) = (tmp.path().join("tune"), tmp.path().join("tuned-bundle"));
     let s = |p: &Path| p.to_str().unwrap().to_string();
-    let r = Command::new(BIN)
-        .args(["finetune", "--from", &s(&base), "--data", &s(&data), "--out", &s(&run), "--bundle", &s(&tuned)])
-        .args(["--epochs", "1", "--batch", "2", "--lr", "1e-2", "--freeze-encoder"])
-        .output()
-        .unwrap();
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let tune_args = |run: &Path, tuned: &Path| {
+        let (base, data, run, tuned) = (s(&base), s(&data), s(run), s(tuned));
+        let args = ["finetune", "--from", &base, "--data", &data, "--out", &run, "--bundle", &tuned, "--epochs", "1"];
+        kill::strings(&[&args[..], &["--batch", "2", "--lr", "1e-2", "--freeze-encoder"]].concat())
+    };
+    let span = kill::timed_run(BIN, &tune_args(&run, &tuned));
     let (a, _) = model::bundle::load_bundle(&base, &device).unwrap();
     let (b, _) = model::bundle::load_bundle(&tuned, &device).unwrap();
     let v = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
@@ -315,6 +301,18 @@ fn finetuning_with_a_frozen_encoder_changes_only_the_decoder() {
     };
     assert_eq!(norms(&a), norms(&b), "a frozen encoder keeps its batch norms' running statistics");
     assert_ne!(v(a.decoder.conv3.weight.val()), v(b.decoder.conv3.weight.val()), "the decoder learns");
+
+    // Kill anywhere, edit nothing, resume = uninterrupted, for a fine-tuning too (its bundle is
+    // written after the run): three kills -9, each run resumed.
+    let (run2, tuned2) = (tmp.path().join("tune2"), tmp.path().join("tuned2"));
+    let resume = [tune_args(&run2, &tuned2), vec!["--resume".to_string()]].concat();
+    let kills = kill::kill_anywhere(BIN, &tune_args(&run2, &tuned2), &resume, 3, span, 5);
+    assert!(kills.mid_run >= 1, "no kill landed mid-run: {kills:?}");
+    assert_eq!(
+        predictions(&tuned),
+        predictions(&tuned2),
+        "a fine-tuning killed {kills:?} ends as an uninterrupted one"
+    );
 }
 
 #[test]

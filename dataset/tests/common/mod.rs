@@ -2,6 +2,9 @@
 
 use std::path::Path;
 
+#[allow(dead_code)]
+pub mod kill;
+
 /// The files directly in `dir` and in its folders `subs` (`""`: `dir` itself), as paths
 /// relative to `dir` with their bytes, in name order: two runs' outputs compare equal exactly
 /// when these do.
@@ -18,8 +21,42 @@ pub fn files(dir: &Path, subs: &[&str]) -> Vec<(String, Vec<u8>)> {
     out
 }
 
+/// Every file under `dir`, however deep, as [`files`] lists them: two runs wrote the same
+/// folder exactly when these compare equal.
+#[allow(dead_code)]
+pub fn all_files(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut subs = vec![String::new()];
+    let mut k = 0;
+    while k < subs.len() {
+        let mut found: Vec<String> = std::fs::read_dir(dir.join(&subs[k]))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.is_dir())
+            .map(|p| p.strip_prefix(dir).unwrap().display().to_string())
+            .collect();
+        found.sort();
+        subs.extend(found);
+        k += 1;
+    }
+    let refs: Vec<&str> = subs.iter().map(String::as_str).collect();
+    files(dir, &refs)
+}
+
+/// Fails, naming the first file that differs (or is missing), unless the folders `a` and `b`
+/// hold the same files with the same bytes; `context` says what made them.
+#[allow(dead_code)]
+pub fn assert_same_files(a: &Path, b: &Path, context: &str) {
+    let (fa, fb) = (all_files(a), all_files(b));
+    let names = |f: &[(String, Vec<u8>)]| f.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
+    assert_eq!(names(&fa), names(&fb), "{context}");
+    for ((name, x), (_, y)) in fa.iter().zip(&fb) {
+        assert!(x == y, "{name} differs: {context}");
+    }
+}
+
 /// Starts the `dataset` binary `bin` with `args`, quiet, and returns it once `dir/samples`
 /// holds at least `samples` files (a run to kill or to race part way).
+#[allow(dead_code)]
 pub fn spawn_until(bin: &str, args: &[&str], dir: &Path, samples: usize) -> std::process::Child {
     let child = std::process::Command::new(bin)
         .args(args)

@@ -8,6 +8,7 @@
 //! ASCII STL). The unmutated files must all be accepted, which checks the checks.
 
 mod mutate;
+mod resume;
 mod targets;
 
 use std::path::{Path, PathBuf};

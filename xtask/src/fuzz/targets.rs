@@ -149,6 +149,13 @@ pub fn build_targets(work: &Path, kit: Option<&Path>) -> Result<Vec<Target>> {
             check: Arc::new(log_check),
         },
         Target {
+            name: "capture-log-resume",
+            file: "captures.csv",
+            shape: Shape::Text,
+            seeds: vec![read(&session.join(formats::session::CAPTURES_CSV))?],
+            check: super::resume::resume_check(work, &session, unit.sensor.clone(), Kit::procedural(25.0))?,
+        },
+        Target {
             name: "frame-png",
             file: "frame.png",
             shape: Shape::Png,
