@@ -11,7 +11,9 @@ pub mod icp;
 pub mod kdtree;
 pub mod plot;
 pub mod predictor;
+pub mod refresh;
 pub mod stream;
 
 pub use cloud::{PointCloud, write_ply};
 pub use predictor::{InferError, Predictor};
+pub use refresh::{ReferenceKeeper, RefreshConfig};

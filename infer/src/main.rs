@@ -11,7 +11,7 @@ use clap::{Parser, Subcommand};
 use infer::Predictor;
 use infer::cloud::ply_bytes;
 use infer::eval::CONTACT_THRESHOLD_MM;
-use infer::stream::{FolderSink, FolderSource, GlobSource, Sink, Source, StreamLimits};
+use infer::stream::{FolderSink, FolderSource, GlobSource, ReferencePolicy, Sink, Source, StreamLimits};
 
 #[derive(Parser)]
 #[command(name = "infer", version, about = "DenseTact depth, contact and point clouds from camera frames")]
@@ -239,6 +239,12 @@ struct StreamArgs {
     /// Keep the network's own reading of the reference frame (by default subtracted).
     #[arg(long)]
     no_tare: bool,
+    /// Let the reference frame follow the camera, slowly, from frames with no contact (2 s
+    /// after the last contact, averaged over 5 s, a quarter of the way each time; a contact
+    /// never enters it). By default it stays the bundle's, and each frame's global drift is
+    /// taken out (measured better: BENCHMARKS.md, "A drifting camera").
+    #[arg(long)]
+    follow_reference: bool,
     /// ROS 2 output.
     #[command(flatten)]
     ros2: Ros2Args,
@@ -338,7 +344,19 @@ impl Ros2Args {
 }
 
 fn stream(args: StreamArgs) -> Result<()> {
-    let StreamArgs { bundle, source, out, fps, max_frames, idle_exit_s, poll_ms, device, no_tare, ros2 } = args;
+    let StreamArgs {
+        bundle,
+        source,
+        out,
+        fps,
+        max_frames,
+        idle_exit_s,
+        poll_ms,
+        device,
+        no_tare,
+        follow_reference,
+        ros2,
+    } = args;
     let mut ros2 = ros2.sink()?;
     let source_path = std::path::Path::new(&source);
     if let Some(out) = &out {
@@ -364,7 +382,12 @@ fn stream(args: StreamArgs) -> Result<()> {
     if let Some(ros2) = ros2.as_mut() {
         sinks.push(ros2.as_mut());
     }
-    let limits = StreamLimits { max_frames, progress_every: Some(std::time::Duration::from_secs(5)) };
+    let reference = if follow_reference {
+        ReferencePolicy::Follow(infer::RefreshConfig::default())
+    } else {
+        ReferencePolicy::Fixed
+    };
+    let limits = StreamLimits { max_frames, progress_every: Some(std::time::Duration::from_secs(5)), reference };
     let report = infer::stream::run(&predictor, source, &mut sinks, &limits, &stop)?;
     println!("{}", report.summary());
     for line in sinks.iter().filter_map(|s| s.summary()) {

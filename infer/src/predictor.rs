@@ -51,6 +51,11 @@ pub struct Predictor {
     /// prediction, as a scale is tared: what the network reads into an untouched membrane is
     /// its bias, not contact. `None` without a reference image or after [`Predictor::set_tare`]`(None)`.
     tare_mm: Option<Vec<f32>>,
+    /// Takes each frame's global drift against the reference ([`sensor::gate::Balance`]: an LED
+    /// warming, auto exposure, white balance) out before the network reads it, so that it reads
+    /// the colours it was trained on. On by default; without a reference there is nothing to
+    /// balance against.
+    pub balance_input: bool,
 }
 
 impl Predictor {
@@ -82,9 +87,11 @@ impl Predictor {
             encoder,
             border_fill,
             tare_mm: None,
+            balance_input: true,
         };
-        predictor.set_tare(reference.as_ref())?;
         predictor.reference = reference;
+        let reference = predictor.reference.clone();
+        predictor.set_tare(reference.as_ref())?;
         Ok(predictor)
     }
 
@@ -100,16 +107,24 @@ impl Predictor {
     }
 
     /// Reads frames against `reference` (an untouched frame of the unit as it looks now) from
-    /// now on: the input's reference difference, the gate and the tare all use it. For the
-    /// samples of a dataset rendered under random looks, each with its own untouched frame.
+    /// now on: the input's reference difference, the gate and the tare (if on) all use it. For
+    /// the samples of a dataset rendered under random looks, each with its own untouched frame,
+    /// and for a stream keeping its reference current ([`crate::ReferenceKeeper`]).
     pub fn set_reference(&mut self, reference: RgbImage) -> Result<(), InferError> {
         self.check(&reference)?;
         let hw = [self.file.input_height_px, self.file.input_width_px];
-        self.encoder = InputEncoder::new(self.file.model.input, hw, Some(&reference)).map_err(|e| {
-            InferError::File { path: self.dir.join(model::bundle::BUNDLE_JSON), message: e.to_string() }
+        let encoder = InputEncoder::new(self.file.model.input, hw, Some(&reference)).map_err(|e| InferError::File {
+            path: self.dir.join(model::bundle::BUNDLE_JSON),
+            message: e.to_string(),
         })?;
-        self.set_tare(Some(&reference))?;
-        self.reference = Some(reference);
+        // The tare reads the reference as every frame will be read: against itself.
+        let old = (std::mem::replace(&mut self.encoder, encoder), self.reference.replace(reference.clone()));
+        if self.is_tared()
+            && let Err(e) = self.set_tare(Some(&reference))
+        {
+            (self.encoder, self.reference) = old;
+            return Err(e);
+        }
         Ok(())
     }
 
@@ -177,8 +192,20 @@ impl Predictor {
         }
         let [h, w] = self.encoder.hw();
         let c = self.encoder.channels().count();
-        let input: Vec<f32> = frames.iter().flat_map(|f| self.encoder.encode(f)).collect();
+        let input: Vec<f32> = frames
+            .iter()
+            .flat_map(|f| match self.drift(f) {
+                Some(balance) => self.encoder.encode(&balance.undo(f)),
+                None => self.encoder.encode(f),
+            })
+            .collect();
         Ok(Tensor::<4>::from_data(TensorData::new(input, [frames.len(), c, h, w]), &self.device))
+    }
+
+    /// The drift [`input`](Self::input) takes out of `frame`, if any.
+    pub fn drift(&self, frame: &RgbImage) -> Option<sensor::gate::Balance> {
+        let reference = self.reference.as_ref().filter(|_| self.balance_input)?;
+        Some(sensor::gate::Balance::fit(frame, reference, &self.mask)).filter(|b| !b.is_none())
     }
 
     /// The network alone: input tensor to output tensor (network units, the model's output size).

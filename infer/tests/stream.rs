@@ -51,6 +51,49 @@ fn setup(folder: &str, n: usize) -> (tempfile::TempDir, Predictor, Vec<(PathBuf,
     (tmp, p, frames)
 }
 
+/// A camera drifting (every channel brighter by up to 8 %, the blue more): the gate still
+/// closes on every untouched frame, and the reference follows them, a pressed frame resetting
+/// the wait; with `Fixed` it never moves.
+#[test]
+fn the_reference_follows_a_drifting_camera_and_drift_does_not_open_the_gate() {
+    let tmp = tempfile::tempdir().unwrap();
+    let renderer = bundle(&tmp.path().join("bundle"));
+    let p = Predictor::load(&tmp.path().join("bundle"), &model::backend::default_device()).unwrap();
+    let dir = tmp.path().join("in");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (_, pressed) = pressed(&renderer);
+    let n = 40;
+    for i in 0..n {
+        let img = if i == 10 {
+            pressed.clone()
+        } else {
+            let quiet = renderer.render(&vec![0.0; renderer.grid().len()], Some(200 + i as u64));
+            let g = 1.0 + 0.08 * i as f32 / n as f32;
+            let gain = [g, g * 0.99, g * 1.02];
+            image::RgbImage::from_fn(quiet.width(), quiet.height(), |x, y| {
+                let q = quiet.get_pixel(x, y).0;
+                image::Rgb([0, 1, 2].map(|c| (q[c] as f32 * gain[c]).round().min(255.0) as u8))
+            })
+        };
+        std::fs::write(dir.join(format!("f{i:03}.png")), sensor::frame::encode_png_rgb(&img)).unwrap();
+    }
+    let pattern = format!("{}/*.png", dir.display());
+    let fast = infer::RefreshConfig { settle_s: 0.05, window_s: 0.1, weight: 0.25, min_frames: 2 };
+    let stream = |reference| {
+        let limits = StreamLimits { reference, ..Default::default() };
+        let source = Box::new(GlobSource::new(&pattern, Some(40.0)).unwrap());
+        infer::stream::run(&p, source, &mut [], &limits, &AtomicBool::new(false)).unwrap()
+    };
+    let followed = stream(infer::stream::ReferencePolicy::Follow(fast));
+    // Only the pressed frame ran the network: drift did not open the gate.
+    let ran: Vec<&str> = followed.frames.iter().filter(|r| r.network_ran).map(|r| r.name.as_str()).collect();
+    assert!(ran.len() == 1 && ran[0].ends_with("f010.png"), "{ran:?}");
+    assert!(followed.reference_updates >= 3, "{} updates", followed.reference_updates);
+    assert!(followed.summary().contains(&format!("updated {} times", followed.reference_updates)));
+    let fixed = stream(infer::stream::ReferencePolicy::Fixed);
+    assert_eq!(fixed.reference_updates, 0);
+}
+
 #[test]
 fn every_frame_of_a_glob_in_order_with_predicts_results() {
     let (tmp, p, frames) = setup("in", 7);

@@ -30,12 +30,14 @@ const NOISE_DISTANCE_PX: usize = 12;
 
 impl ContactGate {
     /// Useful pixels of `frame` that differ from `reference` by more than the gate's grey
-    /// levels, counted up to `min_pixels` (the count stops there: enough to decide).
+    /// levels once the frame's drift is taken out ([`Balance`]), counted up to `min_pixels`
+    /// (the count stops there: enough to decide).
     pub fn changed_pixels(&self, frame: &RgbImage, reference: &RgbImage, mask: &[bool]) -> usize {
         let limit = self.grey_levels * 3.0;
+        let balance = Balance::fit(frame, reference, mask);
         let mut changed = 0;
         for ((p, q), &useful) in frame.pixels().zip(reference.pixels()).zip(mask) {
-            if useful && channel_difference(p.0, q.0) > limit {
+            if useful && balance.difference(p.0, q.0) > limit {
                 changed += 1;
                 if changed >= self.min_pixels {
                     break;
@@ -51,8 +53,103 @@ impl ContactGate {
     }
 }
 
-fn channel_difference(p: [u8; 3], q: [u8; 3]) -> f32 {
-    (0..3).map(|c| (p[c] as f32 - q[c] as f32).abs()).sum()
+/// What drift does to a whole frame against the reference: a gain per colour channel (an LED
+/// warming up, a camera's exposure or white balance moving). Fitted to each frame robustly
+/// (the median ratio over the useful pixels), so that a contact, which changes a part of the
+/// frame, does not move it, and taken out before frame and reference are compared: drift
+/// cannot open the gate, a contact still does.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Balance {
+    /// Frame over reference, per channel (R, G, B).
+    pub gain: [f32; 3],
+}
+
+/// Ratios the balance resolves, and the range it fits in (a frame beyond it is not drift).
+const BALANCE_BINS: usize = 1200;
+const BALANCE_MIN: f32 = 0.5;
+const BALANCE_MAX: f32 = 2.0;
+/// Reference values darker than this give ratios that noise dominates; they are not used.
+const BALANCE_MIN_LEVEL: u8 = 24;
+
+/// The median bin of a histogram, then again among the bins within three robust standard
+/// deviations (1.4826 median absolute deviations) of it: a contact's pixels, all changed one way,
+/// pull a plain median by a fraction of the noise; trimmed, they no longer count.
+fn trimmed_median_bin(counts: &[u32]) -> usize {
+    let median_in = |lo: usize, hi: usize| {
+        let total: u64 = counts[lo..=hi].iter().map(|&c| c as u64).sum();
+        let mut seen = 0u64;
+        (lo..=hi).find(|&k| {
+            seen += counts[k] as u64;
+            2 * seen >= total
+        })
+    };
+    let last = counts.len() - 1;
+    let Some(m) = median_in(0, last) else { return counts.len() / 2 };
+    let total: u64 = counts.iter().map(|&c| c as u64).sum();
+    let mut seen = counts[m] as u64;
+    let mut mad = 0;
+    while 2 * seen < total && mad < counts.len() {
+        mad += 1;
+        seen += m.checked_sub(mad).map_or(0, |k| counts[k] as u64) + counts.get(m + mad).map_or(0, |&c| c as u64);
+    }
+    let reach = ((3.0 * 1.4826 * mad as f64).ceil() as usize).max(2);
+    median_in(m.saturating_sub(reach), (m + reach).min(last)).unwrap_or(m)
+}
+
+impl Balance {
+    /// No drift.
+    pub const NONE: Balance = Balance { gain: [1.0; 3] };
+
+    /// The median of frame / reference per channel over every second useful pixel whose
+    /// reference is bright enough (to 1/800 of a ratio); no drift where too few pixels are.
+    pub fn fit(frame: &RgbImage, reference: &RgbImage, mask: &[bool]) -> Balance {
+        let mut hist = vec![[0u32; 3]; BALANCE_BINS];
+        let mut counted = [0u32; 3];
+        let step = (BALANCE_MAX - BALANCE_MIN) / BALANCE_BINS as f32;
+        for ((p, q), &useful) in frame.pixels().zip(reference.pixels()).zip(mask).step_by(2) {
+            if !useful {
+                continue;
+            }
+            for c in 0..3 {
+                if q.0[c] >= BALANCE_MIN_LEVEL {
+                    let ratio = p.0[c] as f32 / q.0[c] as f32;
+                    let bin = (((ratio - BALANCE_MIN) / step) as isize).clamp(0, BALANCE_BINS as isize - 1);
+                    hist[bin as usize][c] += 1;
+                    counted[c] += 1;
+                }
+            }
+        }
+        let mut gain = [1.0f32; 3];
+        for c in 0..3 {
+            if counted[c] >= 64 {
+                let counts: Vec<u32> = hist.iter().map(|bins| bins[c]).collect();
+                gain[c] = BALANCE_MIN + (trimmed_median_bin(&counts) as f32 + 0.5) * step;
+            }
+        }
+        Balance { gain }
+    }
+
+    /// Whether this is no drift worth undoing (every gain within 0.5 % of 1: a grey level at
+    /// 200; what a contact or noise moves a fit by on an undrifted frame).
+    pub fn is_none(&self) -> bool {
+        self.gain.iter().all(|g| (g - 1.0).abs() < 0.005)
+    }
+
+    /// `frame` with the drift undone (each channel divided by its gain): the frame as the
+    /// reference's camera would have taken it.
+    pub fn undo(&self, frame: &RgbImage) -> RgbImage {
+        let mut out = frame.clone();
+        let inverse = self.gain.map(|g| 1.0 / g);
+        for p in out.pixels_mut() {
+            p.0 = [0, 1, 2].map(|c| (p.0[c] as f32 * inverse[c]).round().clamp(0.0, 255.0) as u8);
+        }
+        out
+    }
+
+    /// Sum over the channels of |frame - gain x reference| (grey levels).
+    pub fn difference(&self, p: [u8; 3], q: [u8; 3]) -> f32 {
+        (0..3).map(|c| (p[c] as f32 - self.gain[c] * q[c] as f32).abs()).sum()
+    }
 }
 
 /// What the fit needs of one labelled frame.
@@ -73,6 +170,8 @@ impl GateFrame {
     pub fn measure(frame: &RgbImage, reference: &RgbImage, mask: &[bool], contact_px: &[bool]) -> Self {
         let n = frame.width() as usize;
         let far = far_from(contact_px, n, NOISE_DISTANCE_PX);
+        // Measured as the gate compares: the frame's drift taken out.
+        let balance = Balance::fit(frame, reference, mask);
         let (mut changed, mut noisy) = ([0u32; GATE_LEVELS.len()], [0u32; GATE_LEVELS.len()]);
         let (mut useful, mut noise_px) = (0u32, 0u32);
         for (i, (p, q)) in frame.pixels().zip(reference.pixels()).enumerate() {
@@ -80,7 +179,7 @@ impl GateFrame {
                 continue;
             }
             useful += 1;
-            let d = channel_difference(p.0, q.0) / 3.0;
+            let d = balance.difference(p.0, q.0) / 3.0;
             let above = GATE_LEVELS.partition_point(|&l| l < d);
             changed[..above].iter_mut().for_each(|c| *c += 1);
             if far[i] {
@@ -261,6 +360,61 @@ mod tests {
         // Nothing labelled with contact: nothing to fit.
         let (img, label) = frame(n, 1.0, 1, None);
         assert_eq!(fit(&[GateFrame::measure(&img, &reference, &mask, &label)]), None);
+    }
+
+    /// `img` as drift leaves it: each channel times its gain.
+    fn drifted(img: &RgbImage, gain: [f32; 3]) -> RgbImage {
+        RgbImage::from_fn(img.width(), img.height(), |x, y| {
+            let p = img.get_pixel(x, y).0;
+            image::Rgb([0, 1, 2].map(|c| (p[c] as f32 * gain[c]).round().clamp(0.0, 255.0) as u8))
+        })
+    }
+
+    #[test]
+    fn drift_does_not_open_the_gate_and_a_contact_under_drift_still_does() {
+        let n = 120;
+        let reference = RgbImage::from_fn(n, n, |x, y| image::Rgb([90 + (x % 40) as u8, 110, 130 + (y % 30) as u8]));
+        let mask = vec![true; (n * n) as usize];
+        let noisy = |seed, contact| {
+            let (img, label) = frame(n, 1.5, seed, contact);
+            // The test frame's flat colours replaced by the reference's pattern, its noise kept.
+            let img = RgbImage::from_fn(n, n, |x, y| {
+                let (p, q) = (img.get_pixel(x, y).0, reference.get_pixel(x, y).0);
+                let base = [100u8, 120, 140];
+                image::Rgb([0, 1, 2].map(|c| (q[c] as i32 + p[c] as i32 - base[c] as i32).clamp(0, 255) as u8))
+            });
+            (img, label)
+        };
+        let gate = ContactGate { grey_levels: 8.0, min_pixels: 30 };
+        // A global gain of 0.9 to 1.1 with a 5 % cast per channel: what a fixed comparison
+        // reads as a change of 5 to 15 grey levels everywhere.
+        for (k, gain) in
+            [[0.9, 0.95, 0.86], [1.1, 1.05, 1.155], [1.0, 1.05, 0.95], [0.95, 0.95, 0.95]].iter().enumerate()
+        {
+            let (quiet, _) = noisy(40 + k as u64, None);
+            let quiet = drifted(&quiet, *gain);
+            let fitted = Balance::fit(&quiet, &reference, &mask);
+            for c in 0..3 {
+                assert!((fitted.gain[c] - gain[c]).abs() < 0.01, "{gain:?}: fitted {fitted:?}");
+            }
+            assert!(!gate.differs(&quiet, &reference, &mask), "drift {gain:?} opened the gate");
+            // The same drift on a small, faint contact (5 px, 12 grey levels): still open.
+            let (pressed, _) = noisy(50 + k as u64, Some((5, 12.0)));
+            assert!(gate.differs(&drifted(&pressed, *gain), &reference, &mask), "drift {gain:?} closed on a contact");
+        }
+        // Without the balance, the same drift opens a fixed comparison (the test means something).
+        let (quiet, _) = noisy(60, None);
+        let quiet = drifted(&quiet, [1.1, 1.05, 1.155]);
+        let opened = quiet
+            .pixels()
+            .zip(reference.pixels())
+            .filter(|(p, q)| Balance::NONE.difference(p.0, q.0) > gate.grey_levels * 3.0)
+            .count();
+        assert!(opened >= gate.min_pixels, "{opened}");
+        // A contact covering a third of the frame does not move the fitted balance.
+        let (big, _) = noisy(61, Some((40, 30.0)));
+        let fitted = Balance::fit(&big, &reference, &mask);
+        assert!(fitted.gain.iter().all(|g| (g - 1.0).abs() < 0.01), "{fitted:?}");
     }
 
     #[test]

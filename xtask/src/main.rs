@@ -4,6 +4,7 @@
 #![deny(unsafe_code)]
 
 mod bench_calibrate;
+mod bench_drift;
 mod bench_finetune;
 mod bench_foreign;
 mod bench_loader;
@@ -65,6 +66,9 @@ enum Bench {
     Looks(bench_looks::Args),
     /// Data loading against the train step: decoded samples/s beside train-step samples/s.
     Loader(bench_loader::Args),
+    /// A camera drifting for twenty minutes: untouched frames gated, false contacts, contact
+    /// L1, with the gate before and after its drift balance and with a following reference.
+    Drift(bench_drift::Args),
 }
 
 fn main() -> ExitCode {
@@ -78,6 +82,7 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Calibrate(args) } => bench_calibrate::run(args),
         Command::Bench { what: Bench::Foreign(args) } => bench_foreign::run(args),
         Command::Bench { what: Bench::Finetune(args) } => bench_finetune::run(args),
+        Command::Bench { what: Bench::Drift(args) } => bench_drift::run(args),
         Command::Bench { what: Bench::Loader(args) } => bench_loader::run(args),
         Command::Bench { what: Bench::Looks(args) } => bench_looks::run(args),
         Command::Bench { what: Bench::Table(args) } => bench_table::run(args),

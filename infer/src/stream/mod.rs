@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 use image::RgbImage;
 use sensor::{CONTACT_THRESHOLD_MM, DepthMap};
 
-use crate::{PointCloud, Predictor};
+use crate::{PointCloud, Predictor, ReferenceKeeper, RefreshConfig};
 use mailbox::Mailbox;
 pub use report::{FrameRecord, Percentiles, StreamReport};
 #[cfg(feature = "ros2")]
@@ -61,6 +61,21 @@ pub struct StreamLimits {
     pub max_frames: Option<u64>,
     /// Print a progress line this often (to stderr).
     pub progress_every: Option<Duration>,
+    /// Whether the reference frame stays the bundle's (the default: every frame's global drift
+    /// is taken out anyway) or follows the camera from untouched frames (`--follow-reference`).
+    pub reference: ReferencePolicy,
+}
+
+/// What a stream does with its reference frame. Measured on a drifting simulated camera
+/// (`cargo xtask bench drift`), following cost contact accuracy against the fixed reference
+/// with the drift balanced out, so it is not the default.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum ReferencePolicy {
+    /// Stays the bundle's for the whole stream.
+    #[default]
+    Fixed,
+    /// Follows the camera's drift from untouched frames ([`ReferenceKeeper`]).
+    Follow(RefreshConfig),
 }
 
 /// Why a stream failed as a whole (a single bad frame does not fail it).
@@ -86,6 +101,13 @@ pub fn run(
     let mut report = StreamReport::new(source.describe(), source.delivery());
     let mut records = Vec::new();
     let started = Instant::now();
+    // The network's side reads against a reference that may follow the camera; the capture
+    // side needs only the sensor and the first frame's channel check.
+    let mut live = predictor.clone();
+    let mut keeper = match limits.reference {
+        ReferencePolicy::Follow(config) if predictor.reference.is_some() => Some(ReferenceKeeper::new(config)),
+        _ => None,
+    };
     std::thread::scope(|scope| {
         scope.spawn(|| {
             capture(&mut *source, predictor, &mailbox, stop);
@@ -94,7 +116,7 @@ pub fn run(
         let mut last_progress = Instant::now();
         let result = (|| {
             while let Some(frame) = mailbox.take() {
-                let (depth, network_ran) = match predictor.predict_gated(&frame.image) {
+                let (depth, network_ran) = match live.predict_gated(&frame.image) {
                     Ok(v) => v,
                     Err(e) => {
                         mailbox.failed(format!("{}: {e}", frame.name));
@@ -104,7 +126,7 @@ pub fn run(
                 let contact_pixels =
                     Predictor::contact_mask(&depth, CONTACT_THRESHOLD_MM).iter().filter(|&&c| c).count();
                 let cloud = if contact_pixels > 0 {
-                    predictor.point_cloud(&depth, CONTACT_THRESHOLD_MM)
+                    live.point_cloud(&depth, CONTACT_THRESHOLD_MM)
                 } else {
                     PointCloud::default()
                 };
@@ -117,7 +139,17 @@ pub fn run(
                     network_ran,
                 };
                 for sink in sinks.iter_mut() {
-                    sink.frame(predictor, &result).map_err(StreamError::Sink)?;
+                    sink.frame(&live, &result).map_err(StreamError::Sink)?;
+                }
+                // Untouched as the gate (closed) and the network (no contact pixel) both say:
+                // the reference may follow it.
+                let untouched = contact_pixels == 0 && (live.gate.is_none() || !network_ran);
+                let seen_s = frame.arrived.saturating_duration_since(started).as_secs_f64();
+                if let (Some(keeper), Some(reference)) = (keeper.as_mut(), live.reference.as_ref())
+                    && let Some(updated) = keeper.observe(seen_s, &frame.image, untouched, reference)
+                    && let Err(e) = live.set_reference(undrifted(updated, predictor))
+                {
+                    mailbox.failed(format!("{}: the reference could not follow it: {e}", frame.name));
                 }
                 records.push(FrameRecord {
                     name: frame.name.clone(),
@@ -147,6 +179,7 @@ pub fn run(
     let mut counts = mailbox.counts();
     counts.problems.extend(source.unfinished());
     report.update(&records, &counts, started.elapsed());
+    report.reference_updates = keeper.map_or(0, |k| k.updates);
     report.frames = records;
     if report.processed == 0
         && let Some(first) = counts.problems.first()
@@ -154,6 +187,17 @@ pub fn run(
         return Err(StreamError::NothingUsable(first.clone()));
     }
     Ok(report)
+}
+
+/// A new reference in the bundle's reference's colours: the global drift, which every frame's
+/// input has taken out anyway, is not kept in it; what is kept is what drift does unevenly.
+fn undrifted(reference: RgbImage, predictor: &Predictor) -> RgbImage {
+    match &predictor.reference {
+        Some(base) if predictor.balance_input => {
+            sensor::gate::Balance::fit(&reference, base, &predictor.mask).undo(&reference)
+        }
+        _ => reference,
+    }
 }
 
 /// The capture thread: frames from `source`, decoded and cropped, into the mailbox.

@@ -78,6 +78,9 @@ pub struct StreamReport {
     pub network_latency_ms: Percentiles,
     /// The same, frames the gate answered without the network.
     pub gated_latency_ms: Percentiles,
+    /// Times the reference frame moved towards the untouched frames (`--follow-reference`; 0
+    /// without).
+    pub reference_updates: u64,
     #[serde(skip)]
     pub frames: Vec<FrameRecord>,
 }
@@ -102,6 +105,7 @@ impl StreamReport {
             latency_ms: Percentiles::default(),
             network_latency_ms: Percentiles::default(),
             gated_latency_ms: Percentiles::default(),
+            reference_updates: 0,
             frames: Vec::new(),
         }
     }
@@ -161,6 +165,10 @@ impl StreamReport {
             line("all", &self.latency_ms),
             line("network ran", &self.network_latency_ms),
             line("gate (no contact)", &self.gated_latency_ms),
+            format!(
+                "reference frame updated {} times from untouched frames (--follow-reference)",
+                self.reference_updates
+            ),
         ]
         .into_iter()
         .chain(self.problems.iter().map(|p| format!("  problem: {p}")))
