@@ -90,9 +90,14 @@ pub fn clipped_fraction(kit: &Kit, params: &GeneratorParams, sensor: &Sensor, pr
 
 /// Builds a trial's scene in the given pose.
 pub fn build_scene(kit: &Kit, trial: &Trial, pose: RigPose) -> Result<Scene> {
+    build_scene_in(kit, trial, pose, glam::Affine3A::IDENTITY)
+}
+
+/// [`build_scene`] on a rig whose frame is `mount` in the sensor's ([`crate::rig::RigOffsets::mount`]).
+pub fn build_scene_in(kit: &Kit, trial: &Trial, pose: RigPose, mount: glam::Affine3A) -> Result<Scene> {
     let indicator = &kit.indicators[trial.indicator];
     let indenters: Vec<_> = trial.indenters.iter().map(|&(j, a)| (&kit.indenters[j], a)).collect();
-    Scene::assemble(indicator, &indenters, pose)
+    Scene::assemble_in(indicator, &indenters, pose, mount)
         .with_context(|| format!("{} trial {}", trial.split.name(), trial.number))
 }
 

@@ -15,7 +15,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use formats::dataset::{
-    CaptureInfo, DATASET_FORMAT_VERSION, DepthStats, LabelParams, Manifest, SampleRecord, SplitSummary, sample_name,
+    CaptureInfo, DATASET_FORMAT_VERSION, DepthStats, LabelParams, Manifest, RigPose, SampleRecord, SplitSummary,
+    sample_name,
 };
 use formats::fs::{write_atomic, write_atomic_unsynced};
 use formats::session::{CaptureLog, reference_frame};
@@ -31,6 +32,7 @@ use crate::generate::build_scene;
 use crate::kit::{Kit, Split, Trial};
 use crate::raycast::{RayBundle, RayCaster, Skipping};
 use crate::resumable;
+use crate::touch::{Z_ZERO_COLUMN, ZFrom, ZReading, first_touch_mm};
 
 /// What a bad row of the log does to the run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -54,6 +56,8 @@ pub struct Labeller<'a> {
     pub sensor: &'a Sensor,
     pub kit: &'a Kit,
     pub on_bad_row: OnBadRow,
+    /// What the log's z measures (default: travel from the seated pose).
+    pub z: ZReading,
 }
 
 /// What a finished labelling reports.
@@ -71,6 +75,8 @@ pub struct LabelReport {
     pub no_contact: Vec<(usize, String)>,
     /// Of those, frames whose image differs from the reference frame (`line`, frame, pixels).
     pub slips: Vec<(usize, String, usize)>,
+    /// How the log's z was read.
+    pub z: ZReading,
 }
 
 /// One row ready to label: its id in the dataset, the trial and the row.
@@ -78,6 +84,8 @@ struct Job<'k> {
     id: u32,
     trial: &'k Trial,
     capture: formats::session::Capture,
+    /// Its machine zero, for a log in machine coordinates.
+    zero_mm: Option<f32>,
 }
 
 impl Labeller<'_> {
@@ -99,6 +107,16 @@ impl Labeller<'_> {
             refuse(e.line().unwrap_or(0), e.to_string())?;
         }
         let row_error = |line: usize, message: String| format!("{}: line {line}: {message}", log.path.display());
+        if self.z.from == ZFrom::Machine
+            && self.z.zero_mm.is_none()
+            && log.rows.iter().any(|r| !r.extra.contains_key(Z_ZERO_COLUMN))
+        {
+            bail!(
+                "{}: --z-from machine needs the machine's z at the seated pose: --z-zero-mm, or a {Z_ZERO_COLUMN} column \
+                 in every row",
+                log.path.display()
+            );
+        }
         let mut jobs = Vec::new();
         for (id, capture) in log.rows.iter().enumerate() {
             let trial = self.kit.trials.iter().find(|t| t.split == capture.split && t.number == capture.trial);
@@ -110,12 +128,24 @@ impl Labeller<'_> {
                     self.kit.source,
                     self.kit.trials_in(capture.split).iter().map(|t| t.number).max().unwrap_or(0)
                 )),
-                Some(_) => pose_problem(capture.pose, self.sensor),
+                // A z counted otherwise is checked once read as travel (`travel`).
+                Some(_) if self.z.from == ZFrom::Seated => pose_problem(capture.pose, self.sensor),
+                Some(_) => pose_problem(RigPose { z_travel_mm: 0.0, ..capture.pose }, self.sensor),
             };
-            match (problem, trial) {
-                (Some(p), _) => refuse(capture.line, row_error(capture.line, p))?,
-                (None, Some(trial)) => jobs.push(Job { id: id as u32, trial, capture: capture.clone() }),
-                (None, None) => unreachable!("a missing trial is a problem"),
+            let zero = match capture.extra.get(Z_ZERO_COLUMN).filter(|_| self.z.from == ZFrom::Machine) {
+                Some(text) => match text.parse::<f32>() {
+                    Ok(v) if v.is_finite() => Ok(Some(v)),
+                    _ => Err(format!("{Z_ZERO_COLUMN} = {text:?} is not a number of millimetres")),
+                },
+                None => Ok(self.z.zero_mm),
+            };
+            match (problem, trial, zero) {
+                (Some(p), _, _) => refuse(capture.line, row_error(capture.line, p))?,
+                (None, _, Err(p)) => refuse(capture.line, row_error(capture.line, p))?,
+                (None, Some(trial), Ok(zero_mm)) => {
+                    jobs.push(Job { id: id as u32, trial, capture: capture.clone(), zero_mm })
+                }
+                (None, None, _) => unreachable!("a missing trial is a problem"),
             }
         }
         let reference_path = reference_frame(&self.session).with_context(|| {
@@ -132,7 +162,7 @@ impl Labeller<'_> {
         };
         // The log may grow (or change) between runs: what the folder is fixed to is the session,
         // the kit and the sensor, and each row is checked by its digest.
-        let source = LabelSource { session: params.session.clone(), kit: params.kit.clone() };
+        let source = LabelSource { session: params.session.clone(), kit: params.kit.clone(), z: self.z };
         let file = LabelFile { format_version: DATASET_FORMAT_VERSION, sensor: self.sensor.clone(), params: source };
         let kit = std::path::Path::new(&self.kit.source);
         let mut inputs = vec![self.session.as_path()];
@@ -245,6 +275,7 @@ impl Labeller<'_> {
             skipped: skipped.into_iter().map(|(_, e)| e).collect(),
             no_contact,
             slips,
+            z: self.z,
         })
     }
 
@@ -273,7 +304,7 @@ impl Labeller<'_> {
             Ok(crop) => crop,
             Err(e) => return Ok(Err(e.into())),
         };
-        let scene = match build_scene(self.kit, job.trial, c.pose) {
+        let scene = match self.travel(job, rays).and_then(|pose| build_scene(self.kit, job.trial, pose)) {
             Ok(scene) => scene,
             Err(e) => return Ok(Err(e)),
         };
@@ -306,6 +337,23 @@ impl Labeller<'_> {
     }
 }
 
+impl Labeller<'_> {
+    /// The row's pose with its z as travel from the seated pose, however the log counts it.
+    fn travel(&self, job: &Job, rays: &RayBundle) -> Result<RigPose> {
+        let logged = job.capture.pose;
+        let z_travel_mm = match self.z.from {
+            ZFrom::Seated => return Ok(logged),
+            ZFrom::Machine => logged.z_travel_mm - job.zero_mm.expect("checked when the rows were read"),
+            ZFrom::FirstTouch => logged.z_travel_mm + first_touch_mm(self.kit, job.trial, logged, self.sensor, rays)?,
+        };
+        let pose = RigPose { z_travel_mm, ..logged };
+        match pose_problem(pose, self.sensor) {
+            Some(p) => bail!("read as {:?}: {p}", self.z.from),
+            None => Ok(pose),
+        }
+    }
+}
+
 /// SHA-256 of a row (all but its line, which moves when rows above it are added) and its
 /// frame file's bytes.
 fn row_digest(c: &formats::session::Capture, frame: &[u8]) -> String {
@@ -328,6 +376,9 @@ pub struct LabelFile {
 pub struct LabelSource {
     pub session: String,
     pub kit: String,
+    /// How the log's z is read (absent: from the seated pose).
+    #[serde(default, skip_serializing_if = "ZReading::is_seated")]
+    pub z: ZReading,
 }
 
 /// The parameters file of a labelled dataset.
@@ -353,14 +404,17 @@ pub fn pose_problem(pose: formats::dataset::RigPose, sensor: &Sensor) -> Option<
 
 /// Human-readable lines of a finished labelling.
 pub fn report_lines(r: &LabelReport) -> Vec<String> {
-    let mut lines = vec![format!(
-        "{} samples ({} new, {} from an earlier run) in {:.1} s: {:.1} samples/s",
-        r.manifest.samples.len(),
-        r.labelled,
-        r.resumed,
-        r.seconds,
-        r.labelled as f64 / r.seconds.max(1e-9)
-    )];
+    let mut lines = vec![
+        format!(
+            "{} samples ({} new, {} from an earlier run) in {:.1} s: {:.1} samples/s",
+            r.manifest.samples.len(),
+            r.labelled,
+            r.resumed,
+            r.seconds,
+            r.labelled as f64 / r.seconds.max(1e-9)
+        ),
+        r.z.describe(),
+    ];
     for (split, s) in &r.manifest.summary {
         lines.push(format!(
             "  {:5}: {:6} samples, contact {:5.1}% of useful pixels, mean contact depth {:.3} mm",

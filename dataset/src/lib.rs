@@ -24,11 +24,13 @@ pub mod raycast;
 #[allow(unsafe_code)]
 pub mod render;
 mod resumable;
+pub mod rig;
 pub mod scene;
 pub mod session;
 pub mod shapes;
 #[allow(unsafe_code)]
 mod simd;
+pub mod touch;
 pub mod unit;
 
 pub use calibration::sawtooth::{SawTooth, SawToothShot};

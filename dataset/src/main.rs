@@ -61,6 +61,15 @@ struct LabelArgs {
     /// What a bad row does: stop at the first (naming its line), or skip it (counted, listed).
     #[arg(long, value_enum, default_value_t = OnBadRow::Stop)]
     on_bad_row: OnBadRow,
+    /// What the log's z_mm measures: travel from the kit's seated pose, from first touch (found
+    /// per row by ray casting its trial, tilts and B), or a machine coordinate (less the
+    /// machine's z at the seated pose: --z-zero-mm, or a z_zero_mm column).
+    #[arg(long, value_enum, default_value_t = dataset::touch::ZFrom::Seated)]
+    z_from: dataset::touch::ZFrom,
+    /// With --z-from machine: the machine's z at the kit's seated pose (mm); a row's z_zero_mm
+    /// column overrides it.
+    #[arg(long, requires = "z_from")]
+    z_zero_mm: Option<f32>,
 }
 
 #[derive(clap::Args)]
@@ -123,6 +132,11 @@ struct GenerateArgs {
     /// frames, captures.csv, reference.png and sawtooth.png, as a lab's rig would produce them.
     #[arg(long, requires = "unit")]
     session: Option<PathBuf>,
+    /// With --session: the rig's errors, drawn from this seed, which the frames obey and the
+    /// log does not (a z zero per trial within +-0.3 mm, the sensor 0.5 mm and 1 degree off
+    /// in its mount, B's zero within +-2 degrees; the truth in .simulation/rig.json).
+    #[arg(long, requires = "session")]
+    rig_errors: Option<u64>,
     /// With --session: frames as JPEG of this quality (1..100), as USB cameras stream them.
     #[arg(long, requires = "session", value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: Option<u8>,
@@ -255,7 +269,8 @@ fn generate(args: GenerateArgs) -> Result<()> {
     if let Some(dir) = &args.session {
         let unit = unit.as_ref().context("--session needs --unit")?;
         let camera = RendererCamera::new(unit, args.jpeg_quality);
-        let writer = SessionWriter { out: dir.clone(), kit: &kit, camera: &camera, params };
+        let rig = args.rig_errors.map(|seed| dataset::rig::RigOffsets::draw(seed, &kit)).unwrap_or_default();
+        let writer = SessionWriter { out: dir.clone(), kit: &kit, camera: &camera, params, rig };
         let report = writer.run()?;
         println!(
             "{} frames ({} new) in {:.1} s; wrote {}",
@@ -302,6 +317,7 @@ fn label(args: LabelArgs) -> Result<()> {
         sensor: &sensor,
         kit: &kit,
         on_bad_row: args.on_bad_row,
+        z: dataset::touch::ZReading { from: args.z_from, zero_mm: args.z_zero_mm },
     };
     let report = labeller.run()?;
     for line in dataset::label::report_lines(&report) {

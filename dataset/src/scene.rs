@@ -77,6 +77,17 @@ pub struct Scene {
 impl Scene {
     /// Seats the indenters in the indicator's holes and poses the assembly.
     pub fn assemble(indicator: &Indicator, indenters: &[(&Indenter, f32)], pose: RigPose) -> Result<Scene, SceneError> {
+        Scene::assemble_in(indicator, indenters, pose, Affine3A::IDENTITY)
+    }
+
+    /// [`Scene::assemble`] on a rig whose frame is `mount` in the sensor's (a sensor sitting
+    /// off the CAD in its mount: [`crate::rig::RigOffsets::mount`]).
+    pub fn assemble_in(
+        indicator: &Indicator,
+        indenters: &[(&Indenter, f32)],
+        pose: RigPose,
+        mount: Affine3A,
+    ) -> Result<Scene, SceneError> {
         if indenters.len() > indicator.holes.len() {
             return Err(SceneError::TooManyIndenters {
                 indicator: indicator.name.clone(),
@@ -84,7 +95,7 @@ impl Scene {
                 indenters: indenters.len(),
             });
         }
-        let rig = rig_transform(pose);
+        let rig = mount * rig_transform(pose);
         let mut parts = vec![indicator.mesh.transformed(&rig)];
         let mut placements = Vec::new();
         for (hole_index, &(indenter, angle_deg)) in indenters.iter().enumerate() {

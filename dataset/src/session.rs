@@ -10,7 +10,9 @@
 //! DIR/.simulation/          the simulation's own files, which a real session does not have:
 //!                           generator.json (settings), rows/ (progress: each finished row
 //!                           and its frame's SHA-256), truth.json (the
-//!                           unit's true sensor description, to measure a calibration against)
+//!                           unit's true sensor description, to measure a calibration against),
+//!                           rig.json (the rig's errors, `RigOffsets`: the frames obey them,
+//!                           the log does not)
 //! ```
 //!
 //! Poses and trials are drawn exactly as `generate` draws them for the same seed, so the
@@ -31,10 +33,11 @@ use sensor::frame::{encode_jpeg_rgb, encode_png_rgb};
 use serde::{Deserialize, Serialize};
 
 use crate::calibration::sawtooth::SawToothShot;
-use crate::generate::{build_scene, draw_sample, noise_seed};
+use crate::generate::{build_scene_in, draw_sample, noise_seed};
 use crate::raycast::{RayBundle, RayCaster, Skipping};
 use crate::render::{PixelGrid, Renderer};
 use crate::resumable;
+use crate::rig::RigOffsets;
 use crate::unit::SensorUnit;
 
 /// The simulation's own folder inside a session.
@@ -46,6 +49,9 @@ pub struct SessionSettings {
     pub params: GeneratorParams,
     /// The camera's own description ([`SessionCamera::describe`]).
     pub camera: serde_json::Value,
+    /// The rig's errors, which the frames obey and the log does not (none: the log is true).
+    #[serde(default, skip_serializing_if = "RigOffsets::is_zero")]
+    pub rig: RigOffsets,
 }
 
 /// The camera a simulated session is filmed with: the project's renderer
@@ -132,6 +138,8 @@ pub struct SessionWriter<'a> {
     pub kit: &'a crate::Kit,
     pub camera: &'a dyn SessionCamera,
     pub params: GeneratorParams,
+    /// The rig's errors: the frames are filmed at the true poses, the log keeps the drawn ones.
+    pub rig: RigOffsets,
 }
 
 /// What a finished session reports.
@@ -145,7 +153,8 @@ impl SessionWriter<'_> {
     pub fn run(&self) -> Result<SessionReport> {
         let start = Instant::now();
         let sim = self.out.join(SIMULATION_DIR);
-        let settings = SessionSettings { params: self.params.clone(), camera: self.camera.describe() };
+        let settings =
+            SessionSettings { params: self.params.clone(), camera: self.camera.describe(), rig: self.rig.clone() };
         let rows_dir = format!("{SIMULATION_DIR}/rows");
         let kit = std::path::Path::new(&self.kit.source);
         let inputs: Vec<&std::path::Path> = (self.kit.source != "procedural").then_some(kit).into_iter().collect();
@@ -161,6 +170,7 @@ impl SessionWriter<'_> {
         )?;
         let sensor = self.camera.sensor();
         write_json(&sim.join("truth.json"), sensor)?;
+        write_json(&sim.join("rig.json"), &self.rig)?;
         // Every frame of one camera has the same extension; an empty depth map's frame tells it.
         let (ext, _) = self.camera.frame(&vec![0f32; sensor.crop_len()], 0);
         let (out, rows) = (&self.out, sim.join("rows"));
@@ -182,7 +192,9 @@ impl SessionWriter<'_> {
         let rays = RayBundle::new(sensor);
         let made = resumable::make_all(&todo, "simulating frames", |id| {
             let (trial, pose) = draw_sample(self.kit, &self.params, id);
-            let scene = build_scene(self.kit, trial, pose)?;
+            // Filmed where the rig truly was; logged where it says it was.
+            let truth = self.rig.true_pose(trial.split, trial.number, pose);
+            let scene = build_scene_in(self.kit, trial, truth, self.rig.mount())?;
             let caster = RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On);
             let (depth, _) = caster.depth_map(sensor, &rays);
             let (_, bytes) = self.camera.frame(&depth.depth_mm, noise_seed(&self.params, id));

@@ -259,6 +259,149 @@ fn a_simulated_session_killed_anywhere_resumes_to_the_uninterrupted_one() {
     common::assert_same_files(&a, &b, "a session whose frame was replaced, resumed");
 }
 
+/// A rig's errors (`--rig-errors`) move the frames, not the log: the log is the error-free
+/// session's, the frames are filmed at the true poses in the offset mount, and labels made from
+/// the log miss the true depth by what registration has to remove.
+#[test]
+fn a_rigs_errors_move_the_frames_not_the_log() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (clean, off) = (tmp.path().join("clean"), tmp.path().join("off"));
+    fn args(dir: &Path) -> Vec<&str> {
+        vec!["generate", "--session", s(dir), "--count", "12", "--seed", "6", "--unit", "2"]
+    }
+    ok(dataset(&args(&clean)));
+    ok(dataset(&[args(&off), vec!["--rig-errors", "7"]].concat()));
+    let log = |dir: &Path| std::fs::read(dir.join(formats::session::CAPTURES_CSV)).unwrap();
+    assert_eq!(log(&clean), log(&off), "the log says the same");
+    let rig: dataset::rig::RigOffsets = formats::read_json(&off.join(".simulation/rig.json")).unwrap();
+    let kit = dataset::Kit::procedural(25.0);
+    assert_eq!(rig, dataset::rig::RigOffsets::draw(7, &kit));
+    let none: dataset::rig::RigOffsets = formats::read_json(&clean.join(".simulation/rig.json")).unwrap();
+    assert!(none.is_zero());
+    let rows = formats::session::CaptureLog::read(&off).unwrap().rows;
+    let differ = rows
+        .iter()
+        .filter(|r| std::fs::read(clean.join(&r.frame)).unwrap() != std::fs::read(off.join(&r.frame)).unwrap());
+    assert!(differ.count() >= rows.len() / 2, "the frames obey the offsets");
+
+    // Labels come from the log: those of the two sessions are the same depth maps, and miss the
+    // true depth of the offset session's frames.
+    let sensor = truth(&off);
+    let (a, b) = (tmp.path().join("la"), tmp.path().join("lb"));
+    ok(label(&clean, &truth(&clean), &a, &[]));
+    ok(label(&off, &sensor, &b, &[]));
+    assert!(files(&a, &["depth"]) == files(&b, &["depth"]));
+    let sensor: sensor::Sensor = formats::read_json(&sensor).unwrap();
+    let rays = dataset::RayBundle::new(&sensor);
+    let manifest = Manifest::load(&b).unwrap();
+    let (mut error_sum, mut pixels) = (0.0f64, 0usize);
+    for sample in &manifest.samples {
+        let row = &rows[sample.id as usize];
+        let trial = kit.trials.iter().find(|t| t.split == row.split && t.number == row.trial).unwrap();
+        let pose = rig.true_pose(row.split, row.trial, row.pose);
+        let scene = dataset::generate::build_scene_in(&kit, trial, pose, rig.mount()).unwrap();
+        let caster = dataset::RayCaster::new(&scene.part_refs(), sensor.radius_mm, dataset::Skipping::On);
+        let (true_depth, _) = caster.depth_map(&sensor, &rays);
+        let labelled =
+            DepthMap::decode_png_um(&b.join(&sample.depth), &std::fs::read(b.join(&sample.depth)).unwrap()).unwrap();
+        for (t, l) in true_depth.depth_mm.iter().zip(&labelled.depth_mm) {
+            if *t > sensor::CONTACT_THRESHOLD_MM || *l > sensor::CONTACT_THRESHOLD_MM {
+                error_sum += (t - l).abs() as f64;
+                pixels += 1;
+            }
+        }
+    }
+    let error_mm = error_sum / pixels.max(1) as f64;
+    eprintln!("unregistered labels against the truth: {error_mm:.4} mm over {pixels} contact pixels");
+    assert!(error_mm > 0.05, "the offsets must matter to the labels: {error_mm} mm");
+}
+
+/// A log's z read as it was written: the same session logged from first touch, or in machine
+/// coordinates (one zero for all, or a zero per row), labels to the seated log's depth maps, and
+/// the report says which reading it assumed.
+#[test]
+fn logs_counting_z_from_first_touch_or_a_machine_zero_label_alike() {
+    let tmp = tempfile::tempdir().unwrap();
+    let session = tmp.path().join("s");
+    ok(dataset(&["generate", "--session", s(&session), "--count", "8", "--seed", "8", "--unit", "2"]));
+    let sensor = truth(&session);
+    let seated_dir = tmp.path().join("seated");
+    let report = ok(label(&session, &sensor, &seated_dir, &[]));
+    assert!(report.contains("seated pose"), "{report}");
+    let depths = |dir: &Path| -> Vec<Vec<f32>> {
+        let m = Manifest::load(dir).unwrap();
+        m.samples
+            .iter()
+            .map(|x| {
+                DepthMap::decode_png_um(&dir.join(&x.depth), &std::fs::read(dir.join(&x.depth)).unwrap())
+                    .unwrap()
+                    .depth_mm
+            })
+            .collect()
+    };
+    let seated = depths(&seated_dir);
+    let original = formats::session::CaptureLog::read(&session).unwrap().rows;
+    // Each row's new z, and its machine zero if the row gives one.
+    type Rewrite<'a> = &'a dyn Fn(usize, &formats::session::Capture) -> (f32, Option<f32>);
+    let rewrite = |z: Rewrite| {
+        let rows: Vec<_> = original
+            .iter()
+            .enumerate()
+            .map(|(k, r)| {
+                let (z_mm, zero) = z(k, r);
+                let mut row =
+                    formats::session::Capture { pose: dataset::RigPose { z_travel_mm: z_mm, ..r.pose }, ..r.clone() };
+                if let Some(zero) = zero {
+                    row.extra.insert("z_zero_mm".into(), zero.to_string());
+                }
+                row
+            })
+            .collect();
+        std::fs::write(session.join(formats::session::CAPTURES_CSV), formats::session::CaptureLog::to_csv(&rows))
+            .unwrap();
+    };
+    let alike = |dir: &Path, tolerance_mm: f32| {
+        for (k, (a, b)) in seated.iter().zip(depths(dir)).enumerate() {
+            let worst = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max);
+            assert!(worst <= tolerance_mm, "{}: sample {k} differs by {worst} mm", dir.display());
+        }
+    };
+    // A machine coordinate: one zero for all, then a zero per row.
+    rewrite(&|_, r| (r.pose.z_travel_mm + 8.0, None));
+    let machine = tmp.path().join("machine");
+    let report = ok(label(&session, &sensor, &machine, &["--z-from", "machine", "--z-zero-mm", "8"]));
+    assert!(report.contains("machine coordinate") && report.contains("z - 8 mm"), "{report}");
+    alike(&machine, 0.0011);
+    rewrite(&|k, r| {
+        let zero = if k % 2 == 0 { 5.0 } else { 8.0 };
+        (r.pose.z_travel_mm + zero, Some(zero))
+    });
+    let per_row = tmp.path().join("per-row");
+    ok(label(&session, &sensor, &per_row, &["--z-from", "machine"]));
+    alike(&per_row, 0.0011);
+    // From first touch, as the geometry puts it for each row.
+    let kit = dataset::Kit::procedural(25.0);
+    let unit: sensor::Sensor = formats::read_json(&sensor).unwrap();
+    let rays = dataset::RayBundle::new(&unit);
+    let touch: Vec<f32> = original
+        .iter()
+        .map(|r| {
+            let trial = kit.trials.iter().find(|t| t.split == r.split && t.number == r.trial).unwrap();
+            dataset::touch::first_touch_mm(&kit, trial, r.pose, &unit, &rays).unwrap()
+        })
+        .collect();
+    rewrite(&|k, r| (r.pose.z_travel_mm - touch[k], None));
+    let first_touch = tmp.path().join("first-touch");
+    let report = ok(label(&session, &sensor, &first_touch, &["--z-from", "first-touch"]));
+    assert!(report.contains("from first touch"), "{report}");
+    alike(&first_touch, 0.0011);
+    // A machine coordinate without its zero is refused before any work, saying what it needs.
+    rewrite(&|_, r| (r.pose.z_travel_mm, None));
+    let r = label(&session, &sensor, &tmp.path().join("no-zero"), &["--z-from", "machine"]);
+    let e = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success() && e.contains("captures.csv") && e.contains("--z-zero-mm"), "{e}");
+}
+
 #[test]
 fn a_logging_slip_is_reported() {
     let tmp = tempfile::tempdir().unwrap();

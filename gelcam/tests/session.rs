@@ -21,7 +21,7 @@ fn a_session_from_another_image_model_labels_to_the_generators_depth() {
         let camera = GelSession::new(&unit);
         let params = GeneratorParams { lifted_fraction: 0.25, ..GeneratorParams::new(11, 12, &kit.source) };
         let dir = session.join(seed.to_string());
-        SessionWriter { out: dir.clone(), kit: &kit, camera: &camera, params }.run().unwrap();
+        SessionWriter { out: dir.clone(), kit: &kit, camera: &camera, params, rig: Default::default() }.run().unwrap();
         let ext = if jpeg.is_some() { "jpg" } else { "png" };
         assert!(dir.join(format!("frames/000000.{ext}")).is_file() && dir.join(format!("reference.{ext}")).is_file());
 
@@ -32,6 +32,7 @@ fn a_session_from_another_image_model_labels_to_the_generators_depth() {
             sensor: &unit.sensor,
             kit: &kit,
             on_bad_row: OnBadRow::Stop,
+            z: Default::default(),
         };
         let report = report_lines(&labeller.run().unwrap()).join("\n");
         assert!(!report.contains("logging slip"), "no untouched frame differs beyond this unit's noise: {report}");

@@ -97,7 +97,7 @@ fn one(
     opts: &CalibrationOptions,
 ) -> Result<Outcome> {
     let session = dir.join("session");
-    SessionWriter { out: session.clone(), kit, camera, params }.run()?;
+    SessionWriter { out: session.clone(), kit, camera, params, rig: Default::default() }.run()?;
     let sawtooth = ["png", "jpg"]
         .iter()
         .map(|e| session.join(format!("sawtooth.{e}")))
@@ -111,8 +111,15 @@ fn one(
     let (calibration_px, _) = compare(&cal.sensor, camera.sensor());
     println!("  calibrated: {calibration_px:.3} px off the truth (stated +-{:.3})", cal.uncertainty_px);
     let data = dir.join("data");
-    Labeller { session: session.clone(), out: data.clone(), sensor: &cal.sensor, kit, on_bad_row: OnBadRow::Stop }
-        .run()?;
+    Labeller {
+        session: session.clone(),
+        out: data.clone(),
+        sensor: &cal.sensor,
+        kit,
+        on_bad_row: OnBadRow::Stop,
+        z: Default::default(),
+    }
+    .run()?;
     let device = model::backend::default_device();
     let run_dir = dir.join("run");
     let config = Recipe::Quickstart.fit_config(data.clone());

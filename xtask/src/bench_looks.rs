@@ -68,12 +68,26 @@ pub fn run(args: Args) -> Result<()> {
         let camera = gelcam::GelSession::new(&unit);
         let dir = args.out.join(format!("gelcam-{g}-{}", args.gelcam_samples));
         let session = dir.join("session");
-        SessionWriter { out: session.clone(), kit: &kit, camera: &camera, params: params(1, args.gelcam_samples) }
-            .run()?;
+        SessionWriter {
+            out: session.clone(),
+            kit: &kit,
+            camera: &camera,
+            params: params(1, args.gelcam_samples),
+            rig: Default::default(),
+        }
+        .run()?;
         // Labelled through the unit's true geometry: the figure is the look's, not a
         // calibration's (`bench foreign` measures the two together).
         let data = dir.join("data");
-        Labeller { session, out: data.clone(), sensor: &unit.sensor, kit: &kit, on_bad_row: OnBadRow::Stop }.run()?;
+        Labeller {
+            session,
+            out: data.clone(),
+            sensor: &unit.sensor,
+            kit: &kit,
+            on_bad_row: OnBadRow::Stop,
+            z: Default::default(),
+        }
+        .run()?;
         sets.push((format!("gelcam unit {g} (membrane {:.2} px)", unit.look.membrane_sigma_px), data, None));
     }
 

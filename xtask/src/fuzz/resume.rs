@@ -39,8 +39,14 @@ pub fn resume_check(work: &Path, session: &Path, sensor: Sensor, kit: Kit) -> Re
 
 /// Labels `session` into `out`, leaving bad rows out (so that edits reach past the first).
 fn label(session: &Path, out: &Path, sensor: &Sensor, kit: &Kit) -> Result<()> {
-    let labeller =
-        Labeller { session: session.to_path_buf(), out: out.to_path_buf(), sensor, kit, on_bad_row: OnBadRow::Skip };
+    let labeller = Labeller {
+        session: session.to_path_buf(),
+        out: out.to_path_buf(),
+        sensor,
+        kit,
+        on_bad_row: OnBadRow::Skip,
+        z: Default::default(),
+    };
     labeller.run().map(|_| ())
 }
 

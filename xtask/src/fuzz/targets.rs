@@ -39,6 +39,7 @@ pub fn build_targets(work: &Path, kit: Option<&Path>) -> Result<Vec<Target>> {
         kit: &procedural,
         camera: &camera,
         params: GeneratorParams::new(5, 3, &procedural.source),
+        rig: Default::default(),
     };
     writer.run()?;
     let run = work.join("run");
