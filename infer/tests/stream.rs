@@ -138,7 +138,7 @@ fn a_paced_glob_faster_than_the_network_drops_stale_frames_and_counts_them() {
     let pattern = format!("{}/*.png", tmp.path().join("in").display());
     // 5000 fps: a 570x570 PNG alone takes longer than 0.2 ms to decode.
     let report = run(&p, Box::new(GlobSource::new(&pattern, Some(5000.0)).unwrap()), None);
-    assert_eq!(report.delivery, "live");
+    assert_eq!(report.delivery, infer::stream::Delivery::Live);
     assert_eq!(report.arrived, n as u64);
     assert_eq!(report.processed + report.dropped + report.unreadable, n as u64, "{}", report.summary());
     assert!(report.dropped > 0, "nothing dropped at 5000 fps: {}", report.summary());

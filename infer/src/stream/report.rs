@@ -56,7 +56,7 @@ impl Percentiles {
 pub struct StreamReport {
     pub source: String,
     /// `live` (stale frames dropped) or `every` (the source waited).
-    pub delivery: &'static str,
+    pub delivery: Delivery,
     /// Frames that arrived: processed, dropped, unreadable, or left when the stream stopped.
     pub arrived: u64,
     pub processed: u64,
@@ -89,10 +89,7 @@ impl StreamReport {
     pub(crate) fn new(source: String, delivery: Delivery) -> Self {
         StreamReport {
             source,
-            delivery: match delivery {
-                Delivery::Live => "live",
-                Delivery::Every => "every",
-            },
+            delivery,
             arrived: 0,
             processed: 0,
             dropped: 0,
@@ -147,7 +144,7 @@ impl StreamReport {
             )
         };
         [
-            format!("source: {} ({})", self.source, self.delivery),
+            format!("source: {} ({})", self.source, self.delivery.name()),
             format!(
                 "{} frames arrived, {} processed ({} by the network, {} answered by the contact gate), {} dropped as \
                  stale, {} unreadable",

@@ -29,13 +29,24 @@ pub enum Delivered {
     Unreadable { name: String, message: String },
 }
 
-/// How a source's frames meet a busy network.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// How a source's frames meet a busy network (`live` or `every` in `stream.json`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Delivery {
     /// Live: the newest frame replaces a waiting one, which counts as dropped.
     Live,
     /// Every frame, in order: the source waits for the network (offline batches).
     Every,
+}
+
+impl Delivery {
+    /// Its name, as `stream.json` writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Delivery::Live => "live",
+            Delivery::Every => "every",
+        }
+    }
 }
 
 /// A stream's frame source. `next` blocks until something arrives and returns `None` at the
