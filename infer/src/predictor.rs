@@ -208,6 +208,17 @@ impl Predictor {
         Some(sensor::gate::Balance::fit(frame, reference, &self.mask)).filter(|b| !b.is_none())
     }
 
+    /// `frame` in this predictor's reference's colours: its global drift taken out, as
+    /// [`input`](Self::input) takes it out of every frame (unchanged without a reference or with
+    /// `balance_input` off). A stream's following reference is kept this way, so that it holds
+    /// only what drift does unevenly.
+    pub fn undrifted(&self, frame: RgbImage) -> RgbImage {
+        match self.reference.as_ref().filter(|_| self.balance_input) {
+            Some(base) => sensor::gate::Balance::fit(&frame, base, &self.mask).undo(&frame),
+            None => frame,
+        }
+    }
+
     /// The network alone: input tensor to output tensor (network units, the model's output size).
     pub fn forward(&self, input: Tensor<4>) -> Tensor<4> {
         self.net.forward(input)

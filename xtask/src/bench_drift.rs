@@ -263,8 +263,7 @@ fn measure(
         if let Some(keeper) = keeper.as_mut()
             && let Some(updated) = keeper.observe(f.t_s, &image, contact_px == 0 && !open, &reference)
         {
-            let base = predictor.reference.as_ref().expect("checked above");
-            live.set_reference(Balance::fit(&updated, base, mask).undo(&updated))?;
+            live.set_reference(predictor.undrifted(updated))?;
         }
     }
     tally.updates = keeper.map_or(0, |k| k.updates);

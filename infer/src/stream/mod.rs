@@ -147,7 +147,7 @@ pub fn run(
                 let seen_s = frame.arrived.saturating_duration_since(started).as_secs_f64();
                 if let (Some(keeper), Some(reference)) = (keeper.as_mut(), live.reference.as_ref())
                     && let Some(updated) = keeper.observe(seen_s, &frame.image, untouched, reference)
-                    && let Err(e) = live.set_reference(undrifted(updated, predictor))
+                    && let Err(e) = live.set_reference(predictor.undrifted(updated))
                 {
                     mailbox.failed(format!("{}: the reference could not follow it: {e}", frame.name));
                 }
@@ -187,17 +187,6 @@ pub fn run(
         return Err(StreamError::NothingUsable(first.clone()));
     }
     Ok(report)
-}
-
-/// A new reference in the bundle's reference's colours: the global drift, which every frame's
-/// input has taken out anyway, is not kept in it; what is kept is what drift does unevenly.
-fn undrifted(reference: RgbImage, predictor: &Predictor) -> RgbImage {
-    match &predictor.reference {
-        Some(base) if predictor.balance_input => {
-            sensor::gate::Balance::fit(&reference, base, &predictor.mask).undo(&reference)
-        }
-        _ => reference,
-    }
 }
 
 /// The capture thread: frames from `source`, decoded and cropped, into the mailbox.
