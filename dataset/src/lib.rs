@@ -18,10 +18,9 @@ pub mod label;
 pub mod looks;
 pub mod mesh;
 pub mod procedural;
-// AVX2 kernels, reached only through `simd::Avx2` tokens (or `simd`'s own dispatch).
-#[allow(unsafe_code)]
+// AVX2 kernels in some of their modules (which allow unsafe code by name), reached only
+// through `simd::Avx2` tokens (or `simd`'s own dispatch).
 pub mod raycast;
-#[allow(unsafe_code)]
 pub mod render;
 mod resumable;
 pub mod rig;

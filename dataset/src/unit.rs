@@ -203,15 +203,11 @@ impl SensorUnit {
     }
 
     /// Checks the unit's numbers; the error says which is wrong.
-    pub fn validate(&self) -> Result<(), String> {
-        self.sensor.validate().map_err(|e| e.to_string())?;
+    pub fn validate(&self) -> Result<(), UnitError> {
+        self.sensor.validate()?;
         let c = &self.camera;
-        let finite_nonneg = |name: &str, v: f64| {
-            if v.is_finite() && v >= 0.0 {
-                Ok(())
-            } else {
-                Err(format!("{name} must be a finite number >= 0, got {v}"))
-            }
+        let finite_nonneg = |name: &'static str, value: f64| {
+            if value.is_finite() && value >= 0.0 { Ok(()) } else { Err(UnitError::Negative { name, value }) }
         };
         finite_nonneg("camera.exposure", c.exposure)?;
         finite_nonneg("camera.vignetting", c.vignetting)?;
@@ -222,26 +218,40 @@ impl SensorUnit {
         finite_nonneg("elastomer.drape_mm", self.elastomer.drape_mm)?;
         finite_nonneg("camera.blur_px", c.blur_px)?;
         if !(c.gamma.is_finite() && (0.2..=5.0).contains(&c.gamma)) {
-            return Err(format!("camera.gamma must be in 0.2..=5, got {}", c.gamma));
+            return Err(UnitError::Gamma(c.gamma));
         }
         if let Some(q) = c.jpeg_quality
             && !(1..=100).contains(&q)
         {
-            return Err(format!("camera.jpeg_quality must be in 1..=100, got {q}"));
+            return Err(UnitError::JpegQuality(q));
         }
         if !(c.lens_max_theta_rad > self.sensor.max_theta_rad && c.lens_max_theta_rad < PI) {
-            return Err(format!(
-                "camera.lens_max_theta_rad must exceed the sensor's max_theta_rad and stay below pi, got {}",
-                c.lens_max_theta_rad
-            ));
+            return Err(UnitError::LensField(c.lens_max_theta_rad));
         }
         for (i, led) in self.leds.iter().enumerate() {
             if DVec3::from(led.position_mm).length() >= self.sensor.radius_mm || !(led.half_distance_mm > 0.0) {
-                return Err(format!("LED {i} must sit inside the dome with a positive half distance"));
+                return Err(UnitError::Led(i));
             }
         }
         Ok(())
     }
+}
+
+/// Why a simulated unit's description is refused.
+#[derive(Debug, thiserror::Error)]
+pub enum UnitError {
+    #[error(transparent)]
+    Sensor(#[from] sensor::SensorError),
+    #[error("{name} must be a finite number >= 0, got {value}")]
+    Negative { name: &'static str, value: f64 },
+    #[error("camera.gamma must be in 0.2..=5, got {0}")]
+    Gamma(f64),
+    #[error("camera.jpeg_quality must be in 1..=100, got {0}")]
+    JpegQuality(u8),
+    #[error("camera.lens_max_theta_rad must exceed the sensor's max_theta_rad and stay below pi, got {0}")]
+    LensField(f64),
+    #[error("LED {0} must sit inside the dome with a positive half distance")]
+    Led(usize),
 }
 
 #[cfg(test)]

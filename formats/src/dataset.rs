@@ -53,14 +53,12 @@ impl std::fmt::Display for Split {
 }
 
 impl std::str::FromStr for Split {
-    type Err = String;
+    type Err = crate::UnknownName;
 
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "train" => Ok(Split::Train),
-            "test" => Ok(Split::Test),
-            other => Err(format!("split must be train or test, got {other:?}")),
-        }
+    /// `train` or `test`, in any case, spaces around ignored.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        crate::find_by_name("split", &s.trim().to_ascii_lowercase(), &[Split::Train, Split::Test], Split::name)
+            .map_err(|e| crate::UnknownName { name: s.to_string(), ..e })
     }
 }
 
@@ -139,26 +137,35 @@ impl Angles {
     }
 }
 
+/// Why a text is not [`Angles`].
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum AnglesError {
+    #[error("{0:?} is not a number of degrees")]
+    NotANumber(String),
+    #[error("{0:?} is not finite")]
+    NotFinite(String),
+    #[error("the range {0:?} runs backwards")]
+    Backwards(String),
+}
+
 impl std::str::FromStr for Angles {
-    type Err = String;
+    type Err = AnglesError;
 
     /// `45` (one value), `0,45,90` (a list) or `-30..30` (a range).
-    fn from_str(s: &str) -> Result<Self, String> {
-        let number = |t: &str| -> Result<f32, String> {
-            let v: f32 = t.trim().parse().map_err(|_| format!("{t:?} is not a number of degrees"))?;
-            if v.is_finite() { Ok(v) } else { Err(format!("{t:?} is not finite")) }
+    fn from_str(s: &str) -> Result<Self, AnglesError> {
+        let number = |t: &str| -> Result<f32, AnglesError> {
+            let v: f32 = t.trim().parse().map_err(|_| AnglesError::NotANumber(t.to_string()))?;
+            if v.is_finite() { Ok(v) } else { Err(AnglesError::NotFinite(t.to_string())) }
         };
         if let Some((lo, hi)) = s.split_once("..") {
             let (lo, hi) = (number(lo)?, number(hi)?);
             if lo > hi {
-                return Err(format!("the range {s:?} runs backwards"));
+                return Err(AnglesError::Backwards(s.to_string()));
             }
             return Ok(Angles::Range([lo, hi]));
         }
+        // `split` yields at least one piece, so a list is never empty.
         let list = s.split(',').map(number).collect::<Result<Vec<_>, _>>()?;
-        if list.is_empty() {
-            return Err("name at least one angle".into());
-        }
         Ok(Angles::List(list))
     }
 }
@@ -492,6 +499,6 @@ mod tests {
             assert_eq!(split.to_string().parse::<Split>().unwrap(), split);
         }
         assert_eq!(" TEST ".parse::<Split>().unwrap(), Split::Test);
-        assert!("validation".parse::<Split>().unwrap_err().contains("train or test"));
+        assert_eq!("validation".parse::<Split>().unwrap_err().to_string(), "unknown split \"validation\": train, test");
     }
 }

@@ -133,7 +133,7 @@ impl CaptureLog {
                     return Err(row("the frame column is empty".into()));
                 }
                 let frame = inside_session(written).map_err(row)?;
-                let split: Split = get("split").parse().map_err(row)?;
+                let split: Split = get("split").parse().map_err(|e: crate::UnknownName| row(e.to_string()))?;
                 let trial: u32 = get("trial")
                     .parse()
                     .map_err(|_| row(format!("trial must be a whole number, got {:?}", get("trial"))))?;
@@ -314,7 +314,14 @@ mod tests {
         assert_eq!(log.rows.len(), 1);
         let messages: Vec<String> = log.bad.iter().map(|e| e.to_string()).collect();
         assert_eq!(log.bad.iter().map(|e| e.line().unwrap()).collect::<Vec<_>>(), [3, 4, 5, 6, 7, 8], "{messages:?}");
-        let wants = ["train or test", "whole number", "finite", "line 2", "empty", "finite number, got \"1e308\""];
+        let wants = [
+            "unknown split \"validation\": train, test",
+            "whole number",
+            "finite",
+            "line 2",
+            "empty",
+            "finite number, got \"1e308\"",
+        ];
         // Paths: resolved within the session, refused outside it, one frame named two ways found.
         let log = parse(
             "frame,split,trial,a_deg,b_deg,c_deg,z_mm\n\

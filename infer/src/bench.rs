@@ -27,8 +27,7 @@ fn median_ms(repeats: usize, mut f: impl FnMut() -> Result<(), InferError>) -> R
         f()?;
         times.push(start.elapsed().as_secs_f64() * 1e3);
     }
-    times.sort_by(f64::total_cmp);
-    Ok(times[times.len() / 2])
+    Ok(formats::stats::median(times))
 }
 
 /// Times `frame_png` (an encoded crop) through `predictor`; `no_contact_png` is a frame the

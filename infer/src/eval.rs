@@ -14,8 +14,8 @@ use crate::Predictor;
 
 pub use sensor::CONTACT_THRESHOLD_MM;
 
-/// The uncertainty of 3D-printed ground truth (mm), drawn on the violin plot as in the paper.
-pub const GROUND_TRUTH_UNCERTAINTY_MM: f64 = 0.11;
+pub use crate::plot::GROUND_TRUTH_UNCERTAINTY_MM;
+pub use formats::stats::Summary;
 
 /// One image's errors.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -141,66 +141,13 @@ impl ImageErrors {
     }
 }
 
-/// Summary statistics of a set of values (NaNs left out).
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Summary {
-    pub n: usize,
-    pub mean: f64,
-    pub sd: f64,
-    pub median: f64,
-    pub q1: f64,
-    pub q3: f64,
-    pub min: f64,
-    pub max: f64,
-}
-
-impl Summary {
-    pub fn of(values: impl IntoIterator<Item = f64>) -> Self {
-        let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
-        v.sort_by(f64::total_cmp);
-        let n = v.len();
-        if n == 0 {
-            return Summary {
-                n,
-                mean: f64::NAN,
-                sd: f64::NAN,
-                median: f64::NAN,
-                q1: f64::NAN,
-                q3: f64::NAN,
-                min: f64::NAN,
-                max: f64::NAN,
-            };
-        }
-        let mean = v.iter().sum::<f64>() / n as f64;
-        // Sample standard deviation (n - 1), zero for one value.
-        let sd = if n > 1 { (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt() } else { 0.0 };
-        Summary {
-            n,
-            mean,
-            sd,
-            median: quantile(&v, 0.5),
-            q1: quantile(&v, 0.25),
-            q3: quantile(&v, 0.75),
-            min: v[0],
-            max: v[n - 1],
-        }
-    }
-}
-
-/// Linear-interpolation quantile of sorted values (numpy's default).
-pub fn quantile(sorted: &[f64], q: f64) -> f64 {
-    let pos = q * (sorted.len() - 1) as f64;
-    let (i, f) = (pos.floor() as usize, pos.fract());
-    if i + 1 < sorted.len() { sorted[i] * (1.0 - f) + sorted[i + 1] * f } else { sorted[i] }
-}
-
 /// The keys of each split's figures in `stats.json`, in the order [`SplitStats`] writes them.
 pub const STAT_KEYS: [&str; 7] =
     ["contact_l1_mm", "zero_contact_l1_mm", "l1_mm", "zero_l1_mm", "l2_mm", "boundary_l1_mm", "zero_boundary_l1_mm"];
 
 /// `stats.json` for one split: contact first (where the sensor is pressed), then the paper's
 /// useful-pixel figures, then the contact boundary.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct SplitStats {
     pub contact_l1_mm: Summary,
     pub zero_contact_l1_mm: Summary,
@@ -216,6 +163,20 @@ pub struct SplitStats {
 }
 
 impl SplitStats {
+    /// The summaries by their keys in `stats.json` ([`STAT_KEYS`]).
+    pub fn summaries(&self) -> [(&'static str, &Summary); 7] {
+        let all = [
+            &self.contact_l1_mm,
+            &self.zero_contact_l1_mm,
+            &self.l1_mm,
+            &self.zero_l1_mm,
+            &self.l2_mm,
+            &self.boundary_l1_mm,
+            &self.zero_boundary_l1_mm,
+        ];
+        std::array::from_fn(|k| (STAT_KEYS[k], all[k]))
+    }
+
     pub fn of(images: &[ImageErrors], skipped_frames: usize, gated_contact_frames: usize) -> Self {
         let s = |f: fn(&ImageErrors) -> f64| Summary::of(images.iter().map(f));
         SplitStats {
@@ -338,31 +299,42 @@ pub fn evaluate_dataset(
         rows.extend(errors);
     }
     let stats_json = serde_json::to_string_pretty(&stats)?;
-    let mut csv = String::from(
-        "id,split,contact_l1_mm,zero_contact_l1_mm,contact_pixels,l1_mm,zero_l1_mm,l2_mm,boundary_l1_mm,zero_boundary_l1_mm,boundary_pixels\n",
-    );
+    let mut csv = csv::Writer::from_writer(Vec::new());
+    csv.write_record([
+        "id",
+        "split",
+        "contact_l1_mm",
+        "zero_contact_l1_mm",
+        "contact_pixels",
+        "l1_mm",
+        "zero_l1_mm",
+        "l2_mm",
+        "boundary_l1_mm",
+        "zero_boundary_l1_mm",
+        "boundary_pixels",
+    ])?;
     for e in &rows {
-        csv += &format!(
-            "{},{},{},{},{},{},{},{},{},{},{}\n",
-            e.id,
-            e.split,
-            e.contact_l1_mm,
-            e.zero_contact_l1_mm,
-            e.contact_pixels,
-            e.l1_mm,
-            e.zero_l1_mm,
-            e.l2_mm,
-            e.boundary_l1_mm,
-            e.zero_boundary_l1_mm,
-            e.boundary_pixels
-        );
+        csv.write_record([
+            e.id.to_string(),
+            e.split.clone(),
+            e.contact_l1_mm.to_string(),
+            e.zero_contact_l1_mm.to_string(),
+            e.contact_pixels.to_string(),
+            e.l1_mm.to_string(),
+            e.zero_l1_mm.to_string(),
+            e.l2_mm.to_string(),
+            e.boundary_l1_mm.to_string(),
+            e.zero_boundary_l1_mm.to_string(),
+            e.boundary_pixels.to_string(),
+        ])?;
     }
+    let csv = csv.into_inner().map_err(|e| anyhow::anyhow!("errors.csv: {e}"))?;
     let groups: Vec<(&str, Vec<f64>)> = groups.into_iter().collect();
     let violin = crate::plot::violin_svg(&groups)?;
     // The three files replace a previous evaluation together, or not at all.
     formats::fs::write_dir_atomic(out, |tmp| -> Result<()> {
         write_atomic(&tmp.join("stats.json"), stats_json.as_bytes())?;
-        write_atomic(&tmp.join("errors.csv"), csv.as_bytes())?;
+        write_atomic(&tmp.join("errors.csv"), &csv)?;
         write_atomic(&tmp.join("violin.svg"), violin.as_bytes())?;
         formats::output::mark(tmp, OutputKind::Evaluation)?;
         Ok(())

@@ -88,7 +88,7 @@ enum Command {
 }
 
 fn bench(bundle: PathBuf, image: Option<PathBuf>, device: String, repeats: usize) -> Result<()> {
-    let dev = model::backend::working_device(&device).map_err(anyhow::Error::msg)?;
+    let dev = model::backend::working_device(&device)?;
     let predictor = Predictor::load(&bundle, &dev)?;
     let reference = predictor.reference.as_ref().map(sensor::frame::encode_png_rgb);
     let frame = match &image {
@@ -104,7 +104,7 @@ fn bench(bundle: PathBuf, image: Option<PathBuf>, device: String, repeats: usize
     println!(
         "bundle {}: {} DenseNet (growth {}, blocks {:?}), input {}x{}, device {device}",
         bundle.display(),
-        f.model.encoder.preset_name().unwrap_or("custom"),
+        f.model.encoder.preset().map_or("custom", model::Preset::name),
         f.model.encoder.growth_rate,
         f.model.encoder.block_config,
         f.input_height_px,
@@ -279,7 +279,7 @@ fn stream_source(
         }
         return Ok(Box::new(folder));
     }
-    Ok(Box::new(GlobSource::new(source, fps).map_err(anyhow::Error::msg)?))
+    Ok(Box::new(GlobSource::new(source, fps)?))
 }
 
 #[cfg(feature = "v4l2")]
@@ -333,7 +333,7 @@ impl Ros2Args {
             return Ok(None);
         }
         let sink = infer::stream::Ros2Sink::new(&self.ros2_namespace, &self.frame_id, self.domain()?);
-        Ok(Some(Box::new(sink.map_err(anyhow::Error::msg)?)))
+        Ok(Some(Box::new(sink?)))
     }
 
     #[cfg(not(feature = "ros2"))]
@@ -364,7 +364,7 @@ fn stream(args: StreamArgs) -> Result<()> {
         let inputs: Vec<&std::path::Path> = [Some(bundle.as_path()), watched].into_iter().flatten().collect();
         formats::output::check_dir(out, formats::output::OutputKind::Stream, &inputs)?;
     }
-    let dev = model::backend::working_device(&device).map_err(anyhow::Error::msg)?;
+    let dev = model::backend::working_device(&device)?;
     let predictor = load(&bundle, &dev, no_tare)?;
     let source = stream_source(&source, fps, poll_ms, idle_exit_s, &predictor.file.sensor)?;
     let mut folder = out.as_deref().map(FolderSink::new).transpose()?;

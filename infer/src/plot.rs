@@ -5,7 +5,10 @@ use anyhow::{Result, anyhow};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use crate::eval::{GROUND_TRUTH_UNCERTAINTY_MM, Summary};
+use formats::stats::Summary;
+
+/// The uncertainty of 3D-printed ground truth (mm), drawn on the violin plot as in the paper.
+pub const GROUND_TRUTH_UNCERTAINTY_MM: f64 = 0.11;
 
 const PALETTE: [RGBColor; 6] = [
     RGBColor(0x4c, 0x72, 0xb0),

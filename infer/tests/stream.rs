@@ -131,17 +131,43 @@ fn every_frame_of_a_glob_in_order_with_predicts_results() {
     assert_eq!(csv.lines().count(), 8);
 }
 
+/// A clock that moves 1 ms at each reading and whose sleeps take no time.
+#[derive(Default)]
+struct StepClock {
+    now: Duration,
+}
+
+impl infer::stream::Clock for StepClock {
+    fn elapsed(&mut self) -> Duration {
+        let now = self.now;
+        self.now += Duration::from_millis(1);
+        now
+    }
+
+    fn sleep(&mut self, d: Duration, _stop: &AtomicBool) {
+        self.now += d;
+    }
+
+    fn instant(&self, _at: Duration) -> std::time::Instant {
+        std::time::Instant::now()
+    }
+}
+
 #[test]
 fn a_paced_glob_faster_than_the_network_drops_stale_frames_and_counts_them() {
     let n = 40;
     let (tmp, p, _) = setup("in", n);
     let pattern = format!("{}/*.png", tmp.path().join("in").display());
-    // 5000 fps: a 570x570 PNG alone takes longer than 0.2 ms to decode.
-    let report = run(&p, Box::new(GlobSource::new(&pattern, Some(5000.0)).unwrap()), None);
+    // 5000 fps on a clock that moves 1 ms between readings (and sleeps take no time): frame 0
+    // is released, then 5 more are due at each reading until the last, frame 39, is; the 38 in
+    // between are stale at the source, whatever the machine's speed. Frame 0 may still be
+    // replaced in the mailbox by frame 39 before the network takes it.
+    let source = GlobSource::new(&pattern, Some(5000.0)).unwrap().with_clock(Box::new(StepClock::default()));
+    let report = run(&p, Box::new(source), None);
     assert_eq!(report.delivery, infer::stream::Delivery::Live);
     assert_eq!(report.arrived, n as u64);
     assert_eq!(report.processed + report.dropped + report.unreadable, n as u64, "{}", report.summary());
-    assert!(report.dropped > 0, "nothing dropped at 5000 fps: {}", report.summary());
+    assert!(report.dropped >= 38 && report.unreadable == 0, "{}", report.summary());
     assert!(report.processed >= 1);
     let got = names(&report);
     assert!(got.windows(2).all(|w| w[0] < w[1]), "out of order or repeated: {got:?}");
@@ -155,16 +181,25 @@ fn a_folder_is_read_as_frames_appear_each_once_whole_and_bad_ones_are_skipped_by
     let watched = tmp.path().join("watched");
     std::fs::create_dir_all(&watched).unwrap();
     std::fs::copy(&staged[0].0, watched.join("a-before.png")).unwrap();
-    let (source, already) =
-        FolderSource::new(&watched, Duration::from_millis(2), Some(Duration::from_millis(1500))).unwrap();
+    // No idle limit: the writer stops the stream once its last frame came through.
+    let (source, already) = FolderSource::new(&watched, Duration::from_millis(2), None).unwrap();
     assert_eq!(already, 1);
 
+    // Each frame is written once the one before came out of the stream (a condition, not a
+    // clock): however slow the machine, no frame waits while a newer one arrives.
+    let (done_tx, done_rx) = std::sync::mpsc::channel::<String>();
+    let mut signal = Signal(done_tx);
+    let stop = AtomicBool::new(false);
+    let (stop_ref, staged, watched_ref) = (&stop, &staged, &watched);
     let report = std::thread::scope(|scope| {
-        scope.spawn(|| {
+        scope.spawn(move || {
+            let wait = || done_rx.recv_timeout(Duration::from_secs(120)).expect("the stream passed the frame on");
             for (i, (path, _)) in staged.iter().enumerate() {
-                std::thread::sleep(Duration::from_millis(150));
+                if i > 0 {
+                    wait();
+                }
                 let bytes = std::fs::read(path).unwrap();
-                let target = watched.join(format!("b{i}.png"));
+                let target = watched_ref.join(format!("b{i}.png"));
                 if i == 2 {
                     // Written in place in two halves: it must not be read half-written.
                     std::fs::write(&target, &bytes[..bytes.len() / 2]).unwrap();
@@ -178,22 +213,35 @@ fn a_folder_is_read_as_frames_appear_each_once_whole_and_bad_ones_are_skipped_by
                     let mut junk = b"\x89PNG\r\n\x1a\n".to_vec();
                     junk.extend([7u8; 40]);
                     junk.extend([0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xae, 0x42, 0x60, 0x82]);
-                    formats::fs::write_atomic_unsynced(&watched.join("b3x.png"), &junk).unwrap();
-                    std::fs::write(watched.join("notes.txt"), b"not a frame").unwrap();
+                    formats::fs::write_atomic_unsynced(&watched_ref.join("b3x.png"), &junk).unwrap();
+                    std::fs::write(watched_ref.join("notes.txt"), b"not a frame").unwrap();
                 }
             }
+            wait();
+            stop_ref.store(true, std::sync::atomic::Ordering::Relaxed);
         });
-        run(&p, Box::new(source), None)
+        let mut sinks: [&mut dyn Sink; 1] = [&mut signal];
+        infer::stream::run(&p, Box::new(source), &mut sinks, &StreamLimits::default(), &stop).unwrap()
     });
     let got = names(&report);
     let expected: Vec<String> = (0..6).map(|i| watched.join(format!("b{i}.png")).display().to_string()).collect();
-    // Frames come 150 ms apart, far slower than the tiny network: none is stale.
+    // Each frame came after the one before was done: none is stale.
     assert_eq!(got, expected, "{}", report.summary());
     assert_eq!((report.unreadable, report.dropped), (1, 0), "{}", report.summary());
     assert!(report.problems[0].contains("b3x.png"), "{:?}", report.problems);
     // The half-written frame was read whole: it is a pressed frame, so the network ran.
     assert!(report.frames[2].network_ran);
     assert!(!report.frames[0].network_ran && !report.frames[3].network_ran);
+}
+
+/// A sink that says which frame came through.
+struct Signal(std::sync::mpsc::Sender<String>);
+
+impl Sink for Signal {
+    fn frame(&mut self, _: &Predictor, result: &infer::stream::FrameResult) -> Result<(), infer::stream::SinkError> {
+        let _ = self.0.send(result.name.to_string());
+        Ok(())
+    }
 }
 
 fn infer(args: &[&str]) -> std::process::Output {

@@ -14,15 +14,25 @@ pub fn default_device() -> Device {
 /// Makes Burn's own default device the CPU (flex) unless `BURN_DEVICE` says otherwise. Burn
 /// picks a GPU backend first when one is compiled in, and places some state there without being
 /// asked (an optimiser record loaded on resume), which starts the Vulkan loader, and its
-/// complaints, on runs that asked for the CPU. Call first thing in `main`, before any thread
-/// starts; our code names its devices, so only Burn's implicit choice changes.
+/// complaints, on runs that asked for the CPU. Call first thing in `main`; our code names its
+/// devices, so only Burn's implicit choice changes. Whether it set it: it does only while the
+/// process runs one thread (checked, not assumed: the environment is not thread-safe), so called
+/// later it does nothing.
 #[allow(unsafe_code)]
-pub fn cpu_unless_asked() {
-    if std::env::var_os("BURN_DEVICE").is_none() {
-        // SAFETY: `set_var` races only with other threads reading or writing the environment;
-        // the callers run this at the start of `main`, before the program starts any thread.
-        unsafe { std::env::set_var("BURN_DEVICE", "flex") };
+pub fn cpu_unless_asked() -> bool {
+    if std::env::var_os("BURN_DEVICE").is_some() || !single_threaded() {
+        return false;
     }
+    // SAFETY: `set_var` races only with other threads reading or writing the environment; the
+    // process has one thread (just counted), and only this one could start another.
+    unsafe { std::env::set_var("BURN_DEVICE", "flex") };
+    true
+}
+
+/// Whether the process runs a single thread (Linux: one entry in `/proc/self/task`); false where
+/// that cannot be told.
+fn single_threaded() -> bool {
+    std::fs::read_dir("/proc/self/task").map(|tasks| tasks.count() == 1).unwrap_or(false)
 }
 
 /// The default wgpu adapter (a discrete GPU when there is one; Mesa's lavapipe on a CPU-only
@@ -35,11 +45,10 @@ pub fn wgpu_device() -> Device {
 /// A device by its command-line name: `flex` (or `cpu`); `wgpu` (the default adapter) and
 /// `wgpu:N` (the N-th discrete GPU) in builds with the `wgpu` feature; `cuda` and `cuda:N` in
 /// builds with the `cuda` feature.
-pub fn device(name: &str) -> Result<Device, String> {
+pub fn device(name: &str) -> Result<Device, DeviceError> {
     let (kind, index) = match name.split_once(':') {
         Some((kind, index)) => {
-            let i =
-                index.trim().parse::<usize>().map_err(|_| format!("{name:?}: the device index must be a number"))?;
+            let i = index.trim().parse::<usize>().map_err(|_| DeviceError::Index(name.to_string()))?;
             (kind.trim(), Some(i))
         }
         None => (name.trim(), None),
@@ -52,23 +61,40 @@ pub fn device(name: &str) -> Result<Device, String> {
         ("wgpu", Some(i)) => Ok(Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(i))),
         #[cfg(feature = "cuda")]
         ("cuda", i) => Ok(Device::cuda(i.unwrap_or(0))),
-        _ => Err(format!(
-            "unknown or unavailable device {name:?}: this build knows flex{}{}",
-            if cfg!(feature = "wgpu") { ", wgpu, wgpu:N" } else { " (wgpu needs a build with --features model/wgpu)" },
-            if cfg!(feature = "cuda") { ", cuda, cuda:N" } else { " (cuda needs a build with --features model/cuda)" },
-        )),
+        _ => Err(DeviceError::Unknown(name.to_string())),
     }
 }
 
 /// Whether `device` works: a GPU runtime that cannot start (no driver, no adapter) panics at its
 /// first operation, which here becomes an error naming the device.
-pub fn check(device: &Device) -> Result<(), String> {
+pub fn check(device: &Device) -> Result<(), DeviceError> {
     let probe = || Tensor::<1>::from_floats([1.0, 2.0], device).sum().into_scalar::<f32>();
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(probe)) {
         Ok(3.0) => Ok(()),
-        Ok(v) => Err(format!("device {device:?} computed 1 + 2 = {v}")),
-        Err(p) => Err(format!("device {device:?} cannot start: {}", panic_message(p.as_ref()))),
+        Ok(v) => Err(DeviceError::Wrong { device: format!("{device:?}"), sum: v }),
+        Err(p) => Err(DeviceError::CannotStart { device: format!("{device:?}"), message: panic_message(p.as_ref()) }),
     }
+}
+
+/// Why a device named on the command line cannot be used.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum DeviceError {
+    #[error("{0:?}: the device index must be a number")]
+    Index(String),
+    #[error(
+        "unknown or unavailable device {0:?}: this build knows flex{wgpu}{cuda}",
+        wgpu = if cfg!(feature = "wgpu") { ", wgpu, wgpu:N" } else { " (wgpu needs a build with --features model/wgpu)" },
+        cuda = if cfg!(feature = "cuda") { ", cuda, cuda:N" } else { " (cuda needs a build with --features model/cuda)" }
+    )]
+    Unknown(String),
+    #[error("device {device} computed 1 + 2 = {sum}")]
+    Wrong { device: String, sum: f32 },
+    #[error("device {device} cannot start: {message}")]
+    CannotStart { device: String, message: String },
+    #[error("{0:?}: name at least one device")]
+    NoneNamed(String),
+    #[error("{list:?}: {name} is named twice; each device takes one share of a batch")]
+    Twice { list: String, name: String },
 }
 
 /// The message a caught panic carried (GPU runtimes report failures by panicking).
@@ -86,21 +112,21 @@ pub fn first_repeat(devices: &[Device]) -> Option<usize> {
 }
 
 /// [`device`] and [`check`] together: the device named, known to work.
-pub fn working_device(name: &str) -> Result<Device, String> {
+pub fn working_device(name: &str) -> Result<Device, DeviceError> {
     let d = device(name)?;
     check(&d)?;
     Ok(d)
 }
 
 /// Devices from a comma-separated list (`cuda:0,cuda:1`), each named once.
-pub fn devices(list: &str) -> Result<Vec<Device>, String> {
+pub fn devices(list: &str) -> Result<Vec<Device>, DeviceError> {
     let names: Vec<&str> = list.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
     if names.is_empty() {
-        return Err(format!("{list:?}: name at least one device"));
+        return Err(DeviceError::NoneNamed(list.to_string()));
     }
     let out = names.iter().map(|name| working_device(name)).collect::<Result<Vec<_>, _>>()?;
     match first_repeat(&out) {
-        Some(i) => Err(format!("{list:?}: {} is named twice; each device takes one share of a batch", names[i])),
+        Some(i) => Err(DeviceError::Twice { list: list.to_string(), name: names[i].to_string() }),
         None => Ok(out),
     }
 }
@@ -118,6 +144,19 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_environment_is_left_alone_once_threads_run() {
+        // A test runs beside the harness's threads; one more is kept alive to be sure.
+        let (tx, rx) = std::sync::mpsc::channel::<()>();
+        let other = std::thread::spawn(move || rx.recv());
+        assert!(!single_threaded());
+        let before = std::env::var_os("BURN_DEVICE");
+        assert!(!cpu_unless_asked());
+        assert_eq!(std::env::var_os("BURN_DEVICE"), before);
+        drop(tx);
+        let _ = other.join();
+    }
+
+    #[test]
     fn device_names_parse_and_bad_ones_are_refused() {
         assert_eq!(device("flex").unwrap(), default_device());
         assert_eq!(device("cpu").unwrap(), default_device());
@@ -126,11 +165,11 @@ mod tests {
         for bad in ["flex:1", "gpu", "cuda:x", "wgpu:-1", ""] {
             assert!(device(bad).is_err(), "{bad:?} must be refused");
         }
-        let twice = devices("flex,cpu").unwrap_err();
+        let twice = devices("flex,cpu").unwrap_err().to_string();
         assert!(twice.contains("twice"), "{twice}");
-        assert!(devices(",").unwrap_err().contains("at least one"));
+        assert!(devices(",").unwrap_err().to_string().contains("at least one"));
         if !cfg!(feature = "cuda") {
-            let e = device("cuda:0").unwrap_err();
+            let e = device("cuda:0").unwrap_err().to_string();
             assert!(e.contains("--features model/cuda"), "{e}");
         }
     }

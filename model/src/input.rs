@@ -51,6 +51,8 @@ impl InputChannels {
         [InputChannels::Rgb, InputChannels::RgbDifference].into_iter().find(|c| c.encoding() == text)
     }
 
+    pub const ALL: [InputChannels; 2] = [InputChannels::Rgb, InputChannels::RgbDifference];
+
     /// The name on the command line.
     pub fn name(self) -> &'static str {
         match self {
@@ -58,13 +60,14 @@ impl InputChannels {
             InputChannels::RgbDifference => "rgb-difference",
         }
     }
+}
 
-    /// The channels named `name` on the command line.
-    pub fn by_name(name: &str) -> Result<Self, String> {
-        [InputChannels::Rgb, InputChannels::RgbDifference]
-            .into_iter()
-            .find(|c| c.name() == name)
-            .ok_or_else(|| format!("unknown input {name:?}: rgb, rgb-difference"))
+impl std::str::FromStr for InputChannels {
+    type Err = formats::UnknownName;
+
+    /// The channels by their name on the command line.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        formats::find_by_name("input", s, &InputChannels::ALL, InputChannels::name)
     }
 }
 
@@ -212,8 +215,9 @@ mod tests {
         assert!(e.contains("reference frame"), "{e}");
         for c in [InputChannels::Rgb, InputChannels::RgbDifference] {
             assert_eq!(InputChannels::from_encoding(c.encoding()), Some(c));
-            assert_eq!(InputChannels::by_name(c.name()), Ok(c));
+            assert_eq!(c.name().parse::<InputChannels>(), Ok(c));
         }
-        assert!(InputChannels::by_name("bgr").is_err());
+        let e = "bgr".parse::<InputChannels>().unwrap_err().to_string();
+        assert!(e.contains("rgb, rgb-difference"), "{e}");
     }
 }

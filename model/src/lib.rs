@@ -28,7 +28,8 @@ pub mod torch;
 pub use input::{InputChannels, InputEncoder};
 pub use loss::{DepthLoss, DepthLossConfig};
 pub use network::{
-    Activation, Decoder, DenseBlock, DenseDepth, DenseDepthConfig, DenseLayer, DenseNetConfig, DenseNetEncoder, Skips,
-    Transition, UpBlock, Upsample, fold_batch_norm, interpolation_matrix, upsample_bilinear, upsample_mode_for,
+    Activation, ConfigError, Decoder, DenseBlock, DenseDepth, DenseDepthConfig, DenseLayer, DenseNetConfig,
+    DenseNetEncoder, Preset, Skips, Transition, UpBlock, Upsample, fold_batch_norm, interpolation_matrix,
+    upsample_bilinear, upsample_mode_for,
 };
-pub use scale::{DepthScale, PAPER_NET_RANGE, UNIT_NET_RANGE};
+pub use scale::{DepthScale, PAPER_NET_RANGE, ScaleError, UNIT_NET_RANGE};

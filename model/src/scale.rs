@@ -42,13 +42,10 @@ impl DepthScale {
     }
 
     /// Checks a scale read from a file: finite, a positive depth, a non-empty range.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), ScaleError> {
         let finite = [self.max_depth_mm, self.net_min, self.net_max].iter().all(|v| v.is_finite());
         if !finite || self.max_depth_mm <= 0.0 || self.range() <= 0.0 || !self.range().is_finite() {
-            return Err(format!(
-                "needs a finite max_depth_mm > 0 and net_min < net_max, got {} mm, {}..{}",
-                self.max_depth_mm, self.net_min, self.net_max
-            ));
+            return Err(ScaleError(*self));
         }
         Ok(())
     }
@@ -61,6 +58,11 @@ impl DepthScale {
         net.sub_scalar(self.net_min).mul_scalar(self.max_depth_mm / self.range())
     }
 }
+
+/// A scale that maps no depth range: not finite, no positive depth, or an empty range.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error("needs a finite max_depth_mm > 0 and net_min < net_max, got {} mm, {}..{}", .0.max_depth_mm, .0.net_min, .0.net_max)]
+pub struct ScaleError(pub DepthScale);
 
 #[cfg(test)]
 mod tests {

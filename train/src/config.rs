@@ -110,6 +110,14 @@ pub struct SettingError {
 }
 
 impl FitConfig {
+    /// The defaults of the settings no recipe sets: `FitConfig::new` and the command line's
+    /// defaults are these (one definition of each).
+    pub const DEFAULT_SEED: u64 = 0;
+    pub const DEFAULT_CHECKPOINT_EVERY: u64 = 50;
+    pub const DEFAULT_ON_BAD_DATA: OnBadData = OnBadData::Stop;
+    pub const DEFAULT_MAX_BAD_STEPS: u64 = 5;
+    pub const DEFAULT_TRAIN_FRACTION: f64 = 1.0;
+
     /// A run on `data` at `input_hw` with the CLI's defaults.
     pub fn new(data: PathBuf, input_hw: [usize; 2]) -> Self {
         FitConfig {
@@ -118,12 +126,12 @@ impl FitConfig {
             epochs: 10,
             batch: 4,
             lr: 1e-4,
-            seed: 0,
-            checkpoint_every: 50,
-            on_bad_data: OnBadData::Stop,
-            max_bad_steps: 5,
+            seed: Self::DEFAULT_SEED,
+            checkpoint_every: Self::DEFAULT_CHECKPOINT_EVERY,
+            on_bad_data: Self::DEFAULT_ON_BAD_DATA,
+            max_bad_steps: Self::DEFAULT_MAX_BAD_STEPS,
             freeze_encoder: false,
-            train_fraction: 1.0,
+            train_fraction: Self::DEFAULT_TRAIN_FRACTION,
             net_range: paper_range(),
             schedule: Schedule::Constant,
             warmup_steps: 0,

@@ -184,7 +184,8 @@ impl<'a> Run<'a> {
                 let mut differences =
                     formats::json::differences(&serde_json::to_value(&state.config)?, &serde_json::to_value(config)?);
                 if state.model != start.model_config {
-                    let name = |c: &DenseDepthConfig| c.encoder.preset_name().unwrap_or("custom").to_string();
+                    let name =
+                        |c: &DenseDepthConfig| c.encoder.preset().map_or("custom", model::Preset::name).to_string();
                     differences.push(format!(
                         "model: {} before, {} now ({})",
                         name(&state.model),
@@ -515,21 +516,30 @@ pub fn permutation(n: usize, seed: u64, epoch: u64) -> Vec<usize> {
 
 fn write_metrics(run: &Path, history: &[EpochMetrics]) -> Result<()> {
     formats::write_json(&run.join("metrics.json"), &history)?;
-    let mut csv =
-        String::from("epoch,train_loss,val_l1_mm,val_loss,skipped_steps,bad_samples,bad_val_samples,seconds\n");
+    let mut csv = csv::Writer::from_writer(Vec::new());
+    csv.write_record([
+        "epoch",
+        "train_loss",
+        "val_l1_mm",
+        "val_loss",
+        "skipped_steps",
+        "bad_samples",
+        "bad_val_samples",
+        "seconds",
+    ])?;
     for m in history {
-        csv.push_str(&format!(
-            "{},{},{},{},{},{},{},{:.1}\n",
-            m.epoch,
-            m.train_loss,
-            m.val_l1_mm,
-            m.val_loss,
-            m.skipped_steps,
-            m.bad_samples,
-            m.bad_val_samples,
-            m.seconds
-        ));
+        csv.write_record([
+            m.epoch.to_string(),
+            m.train_loss.to_string(),
+            m.val_l1_mm.to_string(),
+            m.val_loss.to_string(),
+            m.skipped_steps.to_string(),
+            m.bad_samples.to_string(),
+            m.bad_val_samples.to_string(),
+            format!("{:.1}", m.seconds),
+        ])?;
     }
-    formats::fs::write_atomic(&run.join("metrics.csv"), csv.as_bytes())?;
+    let csv = csv.into_inner().map_err(|e| anyhow::anyhow!("metrics.csv: {e}"))?;
+    formats::fs::write_atomic(&run.join("metrics.csv"), &csv)?;
     Ok(())
 }

@@ -103,7 +103,7 @@ struct Common {
     #[arg(long)]
     lr: Option<f64>,
     /// Seed of the weights, the data order, the augmentation and the hold-out.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = FitConfig::DEFAULT_SEED)]
     seed: u64,
     /// flex (the CPU), wgpu (the default adapter), wgpu:N (the N-th discrete GPU), cuda or
     /// cuda:N (builds with --features model/cuda).
@@ -114,19 +114,19 @@ struct Common {
     #[arg(long, conflicts_with = "device")]
     devices: Option<String>,
     /// Checkpoint every this many steps (and at every epoch's end).
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = FitConfig::DEFAULT_CHECKPOINT_EVERY)]
     checkpoint_every: u64,
     /// Continue the run in --out from its last checkpoint.
     #[arg(long)]
     resume: bool,
     /// What a missing or corrupt sample does: stop (default) or skip (counted, reported).
-    #[arg(long, value_enum, default_value_t = OnBadData::Stop)]
+    #[arg(long, value_enum, default_value_t = FitConfig::DEFAULT_ON_BAD_DATA)]
     on_bad_data: OnBadData,
     /// Consecutive non-finite steps (each skipped) after which the run stops.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = FitConfig::DEFAULT_MAX_BAD_STEPS)]
     max_bad_steps: u64,
     /// Train on this fraction of the training split (a seeded subset).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = FitConfig::DEFAULT_TRAIN_FRACTION)]
     train_fraction: f64,
     /// Learning-rate schedule after the warm-up: constant or cosine (down to 1 % at the end)
     /// (default: the recipe's; fine-tuning: constant).
@@ -174,17 +174,16 @@ struct FitArgs {
     /// loss, lr 1e-4, 16 epochs).
     #[arg(long, value_enum, default_value_t = Recipe::Quickstart)]
     recipe: Recipe,
-    /// tiny, compact, small, medium, densenet121, densenet161, densenet169, densenet201
-    /// (default: the recipe's).
-    #[arg(long)]
-    preset: Option<String>,
+    /// The network's DenseNet (default: the recipe's).
+    #[arg(long, value_parser = preset_parser())]
+    preset: Option<model::Preset>,
     /// Network input, HxW (each side at least 29, any size); the square crop is resized to it
     /// (default: the recipe's).
     #[arg(long, value_parser = parse_hw)]
     input: Option<[usize; 2]>,
     /// What the network reads: `rgb` (the paper's) or `rgb-difference` (RGB and its difference to
     /// the dataset's `unit/reference.png`, which a bundle then carries) (default: the recipe's).
-    #[arg(long, value_parser = model::InputChannels::by_name)]
+    #[arg(long, value_parser = named::<model::InputChannels>(model::InputChannels::ALL.map(model::InputChannels::name)))]
     channels: Option<model::InputChannels>,
     /// Output at the input's resolution (a fifth decoder block whose skip is the input).
     #[arg(long, conflicts_with = "half_resolution")]
@@ -240,11 +239,26 @@ impl DepthUnits {
     }
 }
 
+/// A value named by one of `names` (each listed in the help), parsed by its `FromStr`.
+fn named<T>(names: impl IntoIterator<Item = &'static str>) -> impl clap::builder::TypedValueParser<Value = T>
+where
+    T: std::str::FromStr + Clone + Send + Sync + 'static,
+    T::Err: std::fmt::Debug,
+{
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(names).map(|name| name.parse::<T>().expect("a listed name parses"))
+}
+
+/// `--preset`: every preset.
+fn preset_parser() -> impl clap::builder::TypedValueParser<Value = model::Preset> {
+    named(model::Preset::ALL.map(model::Preset::name))
+}
+
 fn parse_hw(s: &str) -> Result<[usize; 2], String> {
     let (h, w) = s.split_once('x').ok_or_else(|| format!("expected HxW, got {s:?}"))?;
     let parse = |v: &str| v.trim().parse::<usize>().map_err(|e| format!("{v:?}: {e}"));
     let hw = [parse(h)?, parse(w)?];
-    model::DenseDepthConfig::check_input_hw(hw)?;
+    model::DenseDepthConfig::check_input_hw(hw).map_err(|e| e.to_string())?;
     Ok(hw)
 }
 
@@ -256,8 +270,7 @@ fn options(c: &Common) -> Result<RunOptions> {
     let devices = match &c.devices {
         Some(list) => model::backend::devices(list),
         None => model::backend::working_device(&c.device).map(|d| vec![d]),
-    }
-    .map_err(anyhow::Error::msg)?;
+    }?;
     Ok(RunOptions { devices, resume: c.resume, loader_workers: c.loader_workers, inject_nan_step: c.inject_nan_step })
 }
 
@@ -327,16 +340,15 @@ fn fit_settings(args: &FitArgs) -> Result<(FitConfig, model::DenseDepthConfig)> 
     let input = args.input.unwrap_or(recipe.input_hw);
     let net_range = args.depth_units.map_or(base.net_range, DepthUnits::net_range);
     let cfg = config(&args.common, base, input, net_range, false)?;
-    let preset = args.preset.as_deref().unwrap_or(recipe.preset);
+    let preset = args.preset.unwrap_or(recipe.preset);
     let full_resolution = match (args.full_resolution, args.half_resolution) {
         (true, _) => true,
         (_, true) => false,
         _ => recipe.full_resolution,
     };
-    let model_config =
-        model::DenseDepthConfig::new(model::DenseNetConfig::by_name(preset).map_err(anyhow::Error::msg)?)
-            .with_input(args.channels.unwrap_or(recipe.channels))
-            .with_full_resolution(full_resolution);
+    let model_config = model::DenseDepthConfig::new(preset.config())
+        .with_input(args.channels.unwrap_or(recipe.channels))
+        .with_full_resolution(full_resolution);
     Ok((cfg, model_config))
 }
 
@@ -352,7 +364,7 @@ fn run_fit(args: FitArgs) -> Result<()> {
     // The devices first: a device that cannot run is named before the data is looked at.
     let options = options(&args.common)?;
     let (cfg, model_config) = fit_settings(&args)?;
-    let preset = args.preset.clone().unwrap_or_else(|| args.recipe.network().preset.to_string());
+    let preset = args.preset.unwrap_or(args.recipe.network().preset);
     let channels = model_config.input;
     let dev = options.devices[0].clone();
     let weights = match &args.encoder_weights {

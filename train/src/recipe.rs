@@ -22,7 +22,7 @@ pub enum Recipe {
 /// The network a recipe trains.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RecipeNetwork {
-    pub preset: &'static str,
+    pub preset: model::Preset,
     pub input_hw: [usize; 2],
     pub channels: model::InputChannels,
     pub full_resolution: bool,
@@ -32,13 +32,13 @@ impl Recipe {
     pub fn network(self) -> RecipeNetwork {
         match self {
             Recipe::Quickstart => RecipeNetwork {
-                preset: "compact",
+                preset: model::Preset::Compact,
                 input_hw: [128, 128],
                 channels: model::InputChannels::RgbDifference,
                 full_resolution: true,
             },
             Recipe::Paper => RecipeNetwork {
-                preset: "densenet161",
+                preset: model::Preset::Densenet161,
                 input_hw: [480, 640],
                 channels: model::InputChannels::Rgb,
                 full_resolution: false,
@@ -78,7 +78,7 @@ impl Recipe {
     /// The recipe's network configuration.
     pub fn model_config(self) -> anyhow::Result<model::DenseDepthConfig> {
         let n = self.network();
-        Ok(model::DenseDepthConfig::new(model::DenseNetConfig::by_name(n.preset).map_err(anyhow::Error::msg)?)
+        Ok(model::DenseDepthConfig::new(n.preset.config())
             .with_input(n.channels)
             .with_full_resolution(n.full_resolution))
     }

@@ -44,7 +44,7 @@ pub struct Args {
     #[arg(long)]
     vary_look: bool,
     #[arg(long, default_value = "compact")]
-    preset: String,
+    preset: model::Preset,
     /// Network input side (square).
     #[arg(long, default_value_t = 128)]
     input: usize,
@@ -71,7 +71,7 @@ pub fn run(args: Args) -> Result<()> {
     let unseen_samples = args.unseen_samples.unwrap_or(args.samples);
     let per_base = args.samples.div_ceil(args.base_units.len().max(1) as u32);
     let base_dirs: Vec<PathBuf> = args.base_units.iter().map(|&u| data_of(u, per_base)).collect::<Result<_>>()?;
-    let model_config = network(&args.preset)?;
+    let model_config = network(args.preset);
     let cfg = |data: &Path| FitConfig { epochs: args.epochs, seed: args.seed, ..recipe(data, args.input) };
     let seeded = if args.seed == 0 { String::new() } else { format!("-s{}", args.seed) };
     let fresh = || Start { model_config: model_config.clone(), weights: None };

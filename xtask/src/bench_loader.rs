@@ -10,14 +10,14 @@ use anyhow::{Context, Result};
 use dataset::generate::generate_with_unit;
 use dataset::{Kit, Split};
 use formats::dataset::GeneratorParams;
-use model::{DenseDepthConfig, DenseNetConfig};
+use model::DenseDepthConfig;
 use train::data::DepthDataset;
 use train::{BatchLoader, FitConfig, RunOptions, Start, fit_with, permutation};
 
 #[derive(clap::Args)]
 pub struct Args {
     #[arg(long, default_value = "compact")]
-    preset: String,
+    preset: model::Preset,
     /// Network input, HxW.
     #[arg(long, default_value = "128x128")]
     input: String,
@@ -39,7 +39,7 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     let (h, w) = args.input.split_once('x').context("--input is HxW")?;
     let input_hw: [usize; 2] = [h.parse()?, w.parse()?];
-    let device = model::backend::working_device(&args.device).map_err(anyhow::Error::msg)?;
+    let device = model::backend::working_device(&args.device)?;
     let kit = Kit::procedural(25.0);
     let data_dir = args.work.join(format!("data-{}", args.samples));
     generate_with_unit(&data_dir, &kit, 7, 25.0, GeneratorParams::new(0, args.samples, &kit.source))?;
@@ -74,7 +74,7 @@ pub fn run(args: Args) -> Result<()> {
     let batcher = train::data::DepthBatcher::for_data(&data);
     let loss = model::DepthLossConfig::new().with_dynamic_range(data.scale.range() as f64);
     let parallel = train::parallel::DataParallel::new(std::slice::from_ref(&device), batcher, loss)?;
-    let model_config = DenseDepthConfig::new(DenseNetConfig::by_name(&args.preset).map_err(anyhow::Error::msg)?);
+    let model_config = DenseDepthConfig::new(args.preset.config());
     let mut net = model_config.init(&device.clone().autodiff());
     let mut optim = train::optimizer();
     let batches: Vec<Vec<train::data::DepthItem>> = (0..args.steps.min(n / args.batch).max(1) + 1)

@@ -8,7 +8,7 @@ use std::process::Command;
 use anyhow::{Context, Result, bail};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Distribution, Tensor};
-use model::{DenseDepthConfig, DenseNetConfig, DepthLossConfig};
+use model::{DenseDepthConfig, DepthLossConfig};
 use train::data::{DepthBatcher, DepthItem};
 use train::parallel::DataParallel;
 
@@ -16,9 +16,9 @@ use crate::timing::time_ms;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Encoder preset (compact, densenet121, densenet161, densenet169, densenet201, tiny).
+    /// Encoder preset (compact, small, medium, tiny, densenet121, densenet161, densenet169, densenet201).
     #[arg(long, default_value = "densenet161")]
-    preset: String,
+    preset: model::Preset,
     #[arg(long, default_value_t = 480)]
     height: usize,
     #[arg(long, default_value_t = 640)]
@@ -44,12 +44,12 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let encoder = DenseNetConfig::preset(&args.preset).with_context(|| format!("unknown preset {:?}", args.preset))?;
-    DenseDepthConfig::check_input_hw([args.height, args.width]).map_err(anyhow::Error::msg)?;
+    let encoder = args.preset.config();
+    DenseDepthConfig::check_input_hw([args.height, args.width])?;
     let config = DenseDepthConfig::new(encoder.clone());
     let threads = rayon::current_num_threads();
     let (h, w) = (args.height, args.width);
-    let devices = model::backend::devices(&args.devices).map_err(anyhow::Error::msg)?;
+    let devices = model::backend::devices(&args.devices)?;
     let device = devices[0].clone();
     let on_cpu = devices == [model::backend::default_device()];
     let burn_name = if on_cpu { "Burn flex".to_string() } else { format!("Burn {}", args.devices) };

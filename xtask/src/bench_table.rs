@@ -16,7 +16,7 @@ use dataset::{Kit, Split};
 use formats::dataset::{GeneratorParams, Manifest};
 use infer::Predictor;
 use infer::plot::{ScatterPoint, pareto_front, scatter_svg};
-use model::{DenseDepthConfig, DenseNetConfig};
+use model::DenseDepthConfig;
 use serde::{Deserialize, Serialize};
 use train::{FitConfig, Schedule, Start, fit};
 
@@ -166,11 +166,7 @@ fn summarise<'a>(rows: impl Iterator<Item = &'a Row>) -> Vec<Summary> {
     for r in rows {
         groups.entry((r.preset.clone(), r.input_px, r.backend.clone(), r.machine.clone())).or_default().push(r);
     }
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        let n = v.len();
-        if n % 2 == 1 { v[n / 2] } else { (v[n / 2 - 1] + v[n / 2]) / 2.0 }
-    };
+    let median = |v: Vec<f64>| formats::stats::median(v);
     groups
         .into_iter()
         .map(|((preset, input_px, backend, machine), g)| {
@@ -231,10 +227,8 @@ pub fn run(args: Args) -> Result<()> {
             .map(|b| b.to_string())
             .collect()
     });
-    let devices: Vec<(String, burn::tensor::Device)> = backends
-        .iter()
-        .map(|b| Ok((b.clone(), model::backend::device(b).map_err(anyhow::Error::msg)?)))
-        .collect::<Result<_>>()?;
+    let devices: Vec<(String, burn::tensor::Device)> =
+        backends.iter().map(|b| Ok((b.clone(), model::backend::device(b)?))).collect::<Result<_>>()?;
     let machine = machine_name();
     let data = args.work.join("dataset");
     let kit = Kit::procedural(25.0);
@@ -364,7 +358,7 @@ fn train_once(
     };
     let start = Start {
         // The quickstart's recipe: the reference difference in, output at the input's resolution.
-        model_config: DenseDepthConfig::new(DenseNetConfig::by_name(preset_name).map_err(anyhow::Error::msg)?)
+        model_config: DenseDepthConfig::new(preset_name.parse::<model::Preset>()?.config())
             .with_input(model::InputChannels::RgbDifference)
             .with_full_resolution(true),
         weights: None,

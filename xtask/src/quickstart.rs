@@ -13,7 +13,7 @@ use dataset::{Kit, Renderer, SensorUnit, Split};
 use formats::dataset::{GeneratorParams, Manifest};
 use infer::eval::{CONTACT_THRESHOLD_MM, SplitStats};
 use infer::{Predictor, write_ply};
-use model::{DenseDepthConfig, DenseNetConfig};
+use model::DenseDepthConfig;
 use train::{FitConfig, Recipe, Start, fit};
 
 #[derive(clap::Args)]
@@ -35,7 +35,7 @@ pub struct Args {
     unit: u64,
     /// What the network reads: `rgb-difference` (RGB and its difference to the unit's
     /// reference frame) or `rgb` (the paper's).
-    #[arg(long, default_value = "rgb-difference", value_parser = model::InputChannels::by_name)]
+    #[arg(long, default_value = "rgb-difference")]
     channels: model::InputChannels,
     /// Output at half the input's resolution (DenseDepth's) instead of at the input's.
     #[arg(long)]
@@ -54,7 +54,7 @@ pub struct Args {
 struct Plan {
     samples: u32,
     epochs: usize,
-    preset: &'static str,
+    preset: model::Preset,
     input: usize,
     batch: usize,
     examples: usize,
@@ -70,7 +70,7 @@ const USEFUL_GOAL_MM: f64 = 0.08;
 pub fn run(args: Args) -> Result<()> {
     let started = Instant::now();
     let plan = if args.smoke {
-        Plan { samples: 16, epochs: 1, preset: "tiny", input: 64, batch: 2, examples: 2 }
+        Plan { samples: 16, epochs: 1, preset: model::Preset::Tiny, input: 64, batch: 2, examples: 2 }
     } else {
         let (net, fit) = (Recipe::Quickstart.network(), Recipe::Quickstart.fit_config(Default::default()));
         Plan {
@@ -152,7 +152,7 @@ fn train_seed(
         ..recipe(data, plan.input)
     };
     let start = Start {
-        model_config: network(plan.preset)?.with_input(args.channels).with_full_resolution(!args.half_resolution),
+        model_config: network(plan.preset).with_input(args.channels).with_full_resolution(!args.half_resolution),
         weights: None,
     };
     fit(run_dir, &config, start, device, true).context("training (run again to resume)")
@@ -166,10 +166,8 @@ pub fn recipe(data: &Path, input: usize) -> FitConfig {
 
 /// The quickstart's network: `preset` reading RGB and its difference to the unit's reference,
 /// output at the input's resolution.
-pub fn network(preset: &str) -> Result<DenseDepthConfig> {
-    Ok(DenseDepthConfig::new(DenseNetConfig::by_name(preset).map_err(anyhow::Error::msg)?)
-        .with_input(model::InputChannels::RgbDifference)
-        .with_full_resolution(true))
+pub fn network(preset: model::Preset) -> DenseDepthConfig {
+    DenseDepthConfig::new(preset.config()).with_input(model::InputChannels::RgbDifference).with_full_resolution(true)
 }
 
 /// The test split's headline figures over the seeds: mean, sample standard deviation, range.
@@ -312,13 +310,14 @@ impl NetworkOnQuiet {
 /// The outputs a user is pointed to exist and parse.
 fn check_outputs(out: &Path) -> Result<()> {
     let stats_path = out.join("eval/stats.json");
-    let stats: serde_json::Value = serde_json::from_str(
+    let stats: std::collections::BTreeMap<String, infer::eval::SplitStats> = serde_json::from_str(
         &std::fs::read_to_string(&stats_path).with_context(|| format!("{}: missing", stats_path.display()))?,
     )
-    .with_context(|| format!("{}: not JSON", stats_path.display()))?;
+    .with_context(|| format!("{}: not the evaluation's figures", stats_path.display()))?;
     for split in ["train", "test"] {
-        for key in infer::eval::STAT_KEYS {
-            ensure!(stats[split][key]["mean"].is_number(), "{}: no {split}.{key}.mean", stats_path.display());
+        let figures = stats.get(split).with_context(|| format!("{}: no {split} split", stats_path.display()))?;
+        for (key, summary) in figures.summaries() {
+            ensure!(!summary.mean.is_nan(), "{}: no {split}.{key}.mean", stats_path.display());
         }
     }
     let svg_path = out.join("eval/violin.svg");
@@ -418,10 +417,8 @@ mod tests {
             args: Args,
         }
         let args = <Cli as clap::Parser>::try_parse_from(["quickstart"]).unwrap().args;
-        let quickstart = network(cli.network().preset)
-            .unwrap()
-            .with_input(args.channels)
-            .with_full_resolution(!args.half_resolution);
+        let quickstart =
+            network(cli.network().preset).with_input(args.channels).with_full_resolution(!args.half_resolution);
         assert_eq!(quickstart, cli.model_config().unwrap());
         assert_eq!(args.contact_weight, cli.fit_config(data.to_path_buf()).contact_weight);
     }

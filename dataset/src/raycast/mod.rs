@@ -32,8 +32,11 @@ pub enum Skipping {
     Off,
 }
 
+#[allow(unsafe_code)] // the AVX2 block kernel
 mod cast;
+#[allow(unsafe_code)] // eight rays per SIMD lane group
 mod lanes;
+#[allow(unsafe_code)] // AVX2 cone and ball scans
 mod rays;
 mod reference;
 mod triangle;

@@ -23,8 +23,10 @@ use sensor::frame::Chroma;
 use crate::unit::SensorUnit;
 
 mod grid;
+#[allow(unsafe_code)] // the AVX2 noise and finishing pass
 mod noise;
 mod optics;
+#[allow(unsafe_code)] // AVX2 shading lanes
 mod shade;
 
 pub use grid::PixelGrid;

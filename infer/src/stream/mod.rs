@@ -26,8 +26,10 @@ use mailbox::Mailbox;
 pub use report::{FrameRecord, Percentiles, StreamReport};
 #[cfg(feature = "ros2")]
 pub use ros2::{Ros2Sink, messages as ros2_messages, msg as ros2_msg};
-pub use sink::{FolderSink, Sink};
-pub use source::{Delivered, Delivery, FolderSource, GlobSource, RawFrame, Source, yuyv_to_rgb};
+pub use sink::{FolderSink, Sink, SinkError};
+pub use source::{
+    Clock, Delivered, Delivery, FolderSource, GlobSource, RawFrame, Source, SourceError, WallClock, yuyv_to_rgb,
+};
 #[cfg(feature = "v4l2")]
 pub use v4l2::CameraSource;
 
@@ -83,8 +85,8 @@ pub enum ReferencePolicy {
 pub enum StreamError {
     #[error("no frame could be used; the first problem: {0}")]
     NothingUsable(String),
-    #[error("{0}")]
-    Sink(String),
+    #[error(transparent)]
+    Sink(#[from] SinkError),
 }
 
 /// Runs `source` through `predictor` until the source ends, `stop` is set (Ctrl-C) or a limit
@@ -114,7 +116,7 @@ pub fn run(
             mailbox.close();
         });
         let mut last_progress = Instant::now();
-        let result = (|| {
+        let result = (|| -> Result<(), StreamError> {
             while let Some(frame) = mailbox.take() {
                 let (depth, network_ran) = match live.predict_gated(&frame.image) {
                     Ok(v) => v,

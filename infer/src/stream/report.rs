@@ -20,7 +20,8 @@ pub struct FrameRecord {
     pub max_depth_mm: f32,
 }
 
-/// Nearest-rank percentiles of a set of times (ms); all zero for an empty set.
+/// Percentiles of a set of times (ms), by the project's one quantile rule
+/// (`formats::stats`: numpy's); all zero for an empty set.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Percentiles {
     pub count: usize,
@@ -33,13 +34,11 @@ pub struct Percentiles {
 
 impl Percentiles {
     pub fn of(values: impl IntoIterator<Item = f64>) -> Self {
-        let mut v: Vec<f64> = values.into_iter().collect();
+        let v = formats::stats::sorted(values);
         if v.is_empty() {
             return Percentiles::default();
         }
-        v.sort_by(f64::total_cmp);
-        // Nearest rank: the smallest value with at least p of the values at or below it.
-        let rank = |p: f64| v[((p * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1];
+        let rank = |p: f64| formats::stats::quantile_sorted(&v, p);
         Percentiles {
             count: v.len(),
             mean: v.iter().sum::<f64>() / v.len() as f64,
@@ -188,12 +187,16 @@ mod tests {
     use super::*;
 
     #[test]
-    fn percentiles_are_nearest_rank() {
+    fn percentiles_interpolate_as_numpy_does() {
+        // numpy.percentile(range(1, 101), [50, 90, 99]) = 50.5, 90.1, 99.01
         let p = Percentiles::of((1..=100).map(f64::from));
-        assert_eq!((p.count, p.p50, p.p90, p.p99, p.max, p.mean), (100, 50.0, 90.0, 99.0, 100.0, 50.5));
+        assert_eq!((p.count, p.max, p.mean), (100, 100.0, 50.5));
+        for (got, want) in [(p.p50, 50.5), (p.p90, 90.1), (p.p99, 99.01)] {
+            assert!((got - want).abs() < 1e-9, "{got} against {want}");
+        }
         // Order does not matter; a single value is every percentile.
         let p = Percentiles::of([3.0, 1.0, 2.0]);
-        assert_eq!((p.p50, p.p90, p.max), (2.0, 3.0, 3.0));
+        assert!((p.p50, p.max) == (2.0, 3.0) && (p.p90 - 2.8).abs() < 1e-12);
         assert_eq!(Percentiles::of([7.5]).p99, 7.5);
         assert_eq!(Percentiles::of([]), Percentiles::default());
     }

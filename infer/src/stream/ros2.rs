@@ -12,7 +12,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use ros2_client::qos::{Reliability, WhenFull};
 use ros2_client::{Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile};
 
-use super::{FrameResult, Sink};
+use super::{FrameResult, Sink, SinkError};
 use crate::Predictor;
 
 /// The ROS 2 messages published, field for field as their `.msg` definitions (CDR follows the
@@ -141,8 +141,8 @@ pub struct Ros2Sink {
 impl Ros2Sink {
     /// Publishes under `namespace` (absolute, such as `/densetact`) in DDS domain `domain_id`
     /// (ROS 2's `ROS_DOMAIN_ID`; 0 by default), messages stamped with `frame_id`.
-    pub fn new(namespace: &str, frame_id: &str, domain_id: u16) -> Result<Self, String> {
-        let fail = |what: &str, e: &dyn std::fmt::Debug| format!("ROS 2: cannot {what}: {e:?}");
+    pub fn new(namespace: &str, frame_id: &str, domain_id: u16) -> Result<Self, SinkError> {
+        let fail = |what: &'static str, e: &dyn std::fmt::Debug| SinkError::Ros2 { what, detail: format!("{e:?}") };
         let context =
             Context::with_options(ContextOptions::new().domain_id(domain_id)).map_err(|e| fail("start DDS", &e))?;
         let mut node = context
@@ -185,7 +185,7 @@ impl Ros2Sink {
 }
 
 impl Sink for Ros2Sink {
-    fn frame(&mut self, predictor: &Predictor, result: &FrameResult) -> Result<(), String> {
+    fn frame(&mut self, predictor: &Predictor, result: &FrameResult) -> Result<(), SinkError> {
         // The frame's arrival on the wall clock.
         let arrived = SystemTime::now().checked_sub(result.arrived.elapsed()).unwrap_or_else(SystemTime::now);
         let now = arrived.duration_since(UNIX_EPOCH).unwrap_or_default();

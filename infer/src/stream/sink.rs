@@ -9,12 +9,23 @@ use crate::cloud::ply_bytes;
 
 /// Takes each frame's results; an error stops the stream.
 pub trait Sink {
-    fn frame(&mut self, predictor: &Predictor, result: &FrameResult) -> Result<(), String>;
+    fn frame(&mut self, predictor: &Predictor, result: &FrameResult) -> Result<(), SinkError>;
 
     /// A line for the end of the stream, if the sink has something to say.
     fn summary(&self) -> Option<String> {
         None
     }
+}
+
+/// Why a sink cannot take a frame (or cannot start).
+#[derive(Debug, thiserror::Error)]
+pub enum SinkError {
+    /// A file could not be written: a full disk, permissions.
+    #[error(transparent)]
+    Write(#[from] formats::FsError),
+    /// ROS 2's middleware refused a step (`what`).
+    #[error("ROS 2: cannot {what}: {detail}")]
+    Ros2 { what: &'static str, detail: String },
 }
 
 /// Per frame: `depth/NAME.png` (16-bit, micrometres, as `predict --depth-out`) and, for a frame
@@ -73,13 +84,11 @@ impl FolderSink {
 }
 
 impl Sink for FolderSink {
-    fn frame(&mut self, _predictor: &Predictor, result: &FrameResult) -> Result<(), String> {
+    fn frame(&mut self, _predictor: &Predictor, result: &FrameResult) -> Result<(), SinkError> {
         let name = self.name_for(result.name);
-        let write = |path: PathBuf, bytes: &[u8]| {
-            // Unsynced: a frame's files are replaced whole, and a sync each would cost more than
-            // the network at camera rate.
-            formats::fs::write_atomic_unsynced(&path, bytes).map_err(|e| e.to_string())
-        };
+        // Unsynced: a frame's files are replaced whole, and a sync each would cost more than
+        // the network at camera rate.
+        let write = |path: PathBuf, bytes: &[u8]| formats::fs::write_atomic_unsynced(&path, bytes);
         write(self.out.join("depth").join(format!("{name}.png")), &result.depth.to_png_um())?;
         if result.contact_pixels > 0 {
             write(self.out.join("cloud").join(format!("{name}.ply")), &ply_bytes(result.cloud))?;

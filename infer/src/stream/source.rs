@@ -194,6 +194,37 @@ impl Source for FolderSource {
     }
 }
 
+/// Time as a paced source sees it: the wall clock ([`WallClock`]), or one a test steps, so that
+/// what pacing does can be tested without depending on how fast the machine is.
+pub trait Clock: Send {
+    /// Time since the clock's first reading.
+    fn elapsed(&mut self) -> Duration;
+    /// Waits `d`, or less once `stop` is set.
+    fn sleep(&mut self, d: Duration, stop: &AtomicBool);
+    /// The instant of `at` since the first reading (a frame's arrival).
+    fn instant(&self, at: Duration) -> Instant;
+}
+
+/// The wall clock, started at its first reading.
+#[derive(Debug, Default)]
+pub struct WallClock {
+    start: Option<Instant>,
+}
+
+impl Clock for WallClock {
+    fn elapsed(&mut self) -> Duration {
+        self.start.get_or_insert_with(Instant::now).elapsed()
+    }
+
+    fn sleep(&mut self, d: Duration, stop: &AtomicBool) {
+        sleep_unless_stopped(d, stop);
+    }
+
+    fn instant(&self, at: Duration) -> Instant {
+        self.start.map_or_else(Instant::now, |s| s + at)
+    }
+}
+
 /// Existing frames matching a glob pattern, in name order: every one as fast as the network
 /// takes them, or released at `fps` like a camera's (stale ones skipped).
 pub struct GlobSource {
@@ -201,27 +232,51 @@ pub struct GlobSource {
     paths: Vec<PathBuf>,
     next_index: usize,
     fps: Option<f64>,
-    start: Option<Instant>,
+    clock: Box<dyn Clock>,
+}
+
+/// Why a source cannot start.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum SourceError {
+    #[error("--source {pattern:?}: not a valid glob: {why}")]
+    Glob { pattern: String, why: String },
+    #[error("--source {0:?}: no PNG or JPEG frame matches")]
+    NoFrames(String),
+    #[error("--fps must be a positive number of frames per second, got {0}")]
+    Fps(f64),
 }
 
 impl GlobSource {
     /// The frames matching `pattern`; an invalid pattern or none matching is an error.
-    pub fn new(pattern: &str, fps: Option<f64>) -> Result<Self, String> {
-        let matches = glob::glob(pattern).map_err(|e| format!("--source {pattern:?}: not a valid glob: {e}"))?;
+    pub fn new(pattern: &str, fps: Option<f64>) -> Result<Self, SourceError> {
+        let matches =
+            glob::glob(pattern).map_err(|e| SourceError::Glob { pattern: pattern.to_string(), why: e.to_string() })?;
         let mut paths: Vec<PathBuf> = matches
             .filter_map(Result::ok)
             .filter(|p| p.is_file() && p.file_name().and_then(|n| n.to_str()).is_some_and(is_frame_name))
             .collect();
         paths.sort();
         if paths.is_empty() {
-            return Err(format!("--source {pattern:?}: no PNG or JPEG frame matches"));
+            return Err(SourceError::NoFrames(pattern.to_string()));
         }
         if let Some(fps) = fps
             && !(fps.is_finite() && fps > 0.0)
         {
-            return Err(format!("--fps must be a positive number of frames per second, got {fps}"));
+            return Err(SourceError::Fps(fps));
         }
-        Ok(GlobSource { pattern: pattern.to_string(), paths, next_index: 0, fps, start: None })
+        Ok(GlobSource {
+            pattern: pattern.to_string(),
+            paths,
+            next_index: 0,
+            fps,
+            clock: Box::new(WallClock::default()),
+        })
+    }
+
+    /// The same source paced by `clock` instead of the wall clock.
+    pub fn with_clock(mut self, clock: Box<dyn Clock>) -> Self {
+        self.clock = clock;
+        self
     }
 
     pub fn len(&self) -> usize {
@@ -238,22 +293,23 @@ impl Source for GlobSource {
         if stop.load(Ordering::Relaxed) || self.next_index >= self.paths.len() {
             return None;
         }
-        let start = *self.start.get_or_insert_with(Instant::now);
         let mut arrived = Instant::now();
         if let Some(fps) = self.fps {
             // The frame the camera would show now; those released before it are stale.
             // The last frame is never stale: nothing newer replaces it.
-            let due = ((start.elapsed().as_secs_f64() * fps) as usize).min(self.paths.len() - 1);
+            let now = self.clock.elapsed();
+            let due = ((now.as_secs_f64() * fps) as usize).min(self.paths.len() - 1);
             if due > self.next_index {
                 let stale = (due - self.next_index) as u64;
                 self.next_index = due;
                 return Some(Delivered::Skipped(stale));
             }
-            arrived = start + Duration::from_secs_f64(self.next_index as f64 / fps);
-            sleep_unless_stopped(arrived.saturating_duration_since(Instant::now()), stop);
+            let release = Duration::from_secs_f64(self.next_index as f64 / fps);
+            self.clock.sleep(release.saturating_sub(now), stop);
             if stop.load(Ordering::Relaxed) {
                 return None;
             }
+            arrived = self.clock.instant(release);
         }
         let path = &self.paths[self.next_index];
         self.next_index += 1;

@@ -56,33 +56,10 @@ impl DenseNetConfig {
         Self::new(10, [2, 3, 4, 3], 24, 2)
     }
 
-    /// Looks a preset up by name.
-    pub fn preset(name: &str) -> Option<Self> {
-        Some(match name {
-            "densenet121" => Self::densenet121(),
-            "densenet161" => Self::densenet161(),
-            "densenet169" => Self::densenet169(),
-            "densenet201" => Self::densenet201(),
-            "compact" => Self::compact(),
-            "small" => Self::small(),
-            "medium" => Self::medium(),
-            "tiny" => Self::tiny(),
-            _ => return None,
-        })
-    }
-
-    /// A preset by name, or an error listing the presets.
-    pub fn by_name(name: &str) -> Result<Self, String> {
-        Self::preset(name).ok_or_else(|| format!("unknown preset {name:?}: {}", Self::PRESETS.join(", ")))
-    }
-
     /// The preset this configuration is, if any.
-    pub fn preset_name(&self) -> Option<&'static str> {
-        Self::PRESETS.into_iter().find(|name| Self::preset(name).as_ref() == Some(self))
+    pub fn preset(&self) -> Option<Preset> {
+        Preset::ALL.into_iter().find(|p| p.config() == *self)
     }
-
-    pub const PRESETS: [&'static str; 8] =
-        ["compact", "small", "medium", "tiny", "densenet121", "densenet161", "densenet169", "densenet201"];
 
     /// Channels after each dense block (before its transition halves them).
     pub fn block_channels(&self) -> [usize; 4] {
@@ -103,6 +80,91 @@ impl DenseNetConfig {
         let b = self.block_channels();
         ([self.num_init_features, self.num_init_features, b[0] / 2, b[1] / 2], b[3])
     }
+}
+
+/// The DenseNet encoders by name: the paper's DenseNet-161, its torchvision siblings, and the
+/// smaller ones this project trains on a CPU (`compact` is the quickstart's).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Preset {
+    Compact,
+    Small,
+    Medium,
+    Tiny,
+    Densenet121,
+    Densenet161,
+    Densenet169,
+    Densenet201,
+}
+
+impl Preset {
+    pub const ALL: [Preset; 8] = [
+        Preset::Compact,
+        Preset::Small,
+        Preset::Medium,
+        Preset::Tiny,
+        Preset::Densenet121,
+        Preset::Densenet161,
+        Preset::Densenet169,
+        Preset::Densenet201,
+    ];
+
+    /// The name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Preset::Compact => "compact",
+            Preset::Small => "small",
+            Preset::Medium => "medium",
+            Preset::Tiny => "tiny",
+            Preset::Densenet121 => "densenet121",
+            Preset::Densenet161 => "densenet161",
+            Preset::Densenet169 => "densenet169",
+            Preset::Densenet201 => "densenet201",
+        }
+    }
+
+    /// The encoder's configuration.
+    pub fn config(self) -> DenseNetConfig {
+        match self {
+            Preset::Compact => DenseNetConfig::compact(),
+            Preset::Small => DenseNetConfig::small(),
+            Preset::Medium => DenseNetConfig::medium(),
+            Preset::Tiny => DenseNetConfig::tiny(),
+            Preset::Densenet121 => DenseNetConfig::densenet121(),
+            Preset::Densenet161 => DenseNetConfig::densenet161(),
+            Preset::Densenet169 => DenseNetConfig::densenet169(),
+            Preset::Densenet201 => DenseNetConfig::densenet201(),
+        }
+    }
+}
+
+impl std::str::FromStr for Preset {
+    type Err = formats::UnknownName;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        formats::find_by_name("preset", s, &Preset::ALL, Preset::name)
+    }
+}
+
+impl std::fmt::Display for Preset {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Why a network's configuration or input is refused.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    #[error("input {h}x{w}: both sides must be at least {min} px (five halvings leave one pixel)")]
+    InputTooSmall { h: usize, w: usize, min: usize },
+    #[error("this DenseDepth takes {want} input channels ([N, {want}, H, W]), got {got}")]
+    InputChannels { want: usize, got: usize },
+    #[error(
+        "encoder sizes out of range: growth_rate {growth_rate} (1..=512), block_config {block_config:?} (1..=256 \
+         each), num_init_features {num_init_features} (1..=2048), bn_size {bn_size} (1..=64)"
+    )]
+    EncoderSizes { growth_rate: usize, block_config: [usize; 4], num_init_features: usize, bn_size: usize },
+    #[error("decoder_width {width} leaves the decoder without channels (widths {channels:?}); it must be in (0, 4]")]
+    DecoderWidth { width: f64, channels: [usize; 5] },
 }
 
 /// DenseDepth: the DenseNet encoder and a decoder of four upsample-concat-conv-conv blocks.
@@ -143,10 +205,10 @@ impl DenseDepthConfig {
     pub const MIN_INPUT_SIDE: usize = 29;
 
     /// Checks an input size `[h, w]`; the error says why it is refused.
-    pub fn check_input_hw([h, w]: [usize; 2]) -> Result<(), String> {
+    pub fn check_input_hw([h, w]: [usize; 2]) -> Result<(), ConfigError> {
         let min = Self::MIN_INPUT_SIDE;
         if h < min || w < min {
-            return Err(format!("input {h}x{w}: both sides must be at least {min} px (five halvings leave one pixel)"));
+            return Err(ConfigError::InputTooSmall { h, w, min });
         }
         Ok(())
     }
@@ -154,7 +216,7 @@ impl DenseDepthConfig {
     /// Checks a configuration read from a file: every size positive and within what a network
     /// of this family could hold, so that a corrupted file is an error rather than an attempt to
     /// allocate terabytes.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), ConfigError> {
         let e = &self.encoder;
         let within = |v: usize, max: usize| (1..=max).contains(&v);
         if !within(e.growth_rate, 512)
@@ -162,18 +224,15 @@ impl DenseDepthConfig {
             || !within(e.bn_size, 64)
             || !e.block_config.iter().all(|&n| within(n, 256))
         {
-            return Err(format!(
-                "encoder sizes out of range: growth_rate {} (1..=512), block_config {:?} (1..=256 each), \
-                 num_init_features {} (1..=2048), bn_size {} (1..=64)",
-                e.growth_rate, e.block_config, e.num_init_features, e.bn_size
-            ));
+            return Err(ConfigError::EncoderSizes {
+                growth_rate: e.growth_rate,
+                block_config: e.block_config,
+                num_init_features: e.num_init_features,
+                bn_size: e.bn_size,
+            });
         }
         if !(self.decoder_width > 0.0 && self.decoder_width <= 4.0) || self.decoder_channels()[4] == 0 {
-            return Err(format!(
-                "decoder_width {} leaves the decoder without channels (widths {:?}); it must be in (0, 4]",
-                self.decoder_width,
-                self.decoder_channels()
-            ));
+            return Err(ConfigError::DecoderWidth { width: self.decoder_width, channels: self.decoder_channels() });
         }
         Ok(())
     }
@@ -192,14 +251,17 @@ mod tests {
         assert_eq!(DenseNetConfig::densenet121().skip_channels(), ([64, 64, 128, 256], 1024));
         let cfg = DenseDepthConfig::new(DenseNetConfig::densenet161());
         assert_eq!(cfg.decoder_channels(), [1104, 552, 276, 138, 69]);
-        for name in DenseNetConfig::PRESETS {
-            let preset = DenseNetConfig::preset(name).unwrap();
-            DenseDepthConfig::new(preset).check().unwrap();
+        for preset in Preset::ALL {
+            assert_eq!(preset.name().parse::<Preset>(), Ok(preset));
+            assert_eq!(preset.config().preset(), Some(preset));
+            DenseDepthConfig::new(preset.config()).check().unwrap();
         }
+        let unknown = "densenet".parse::<Preset>().unwrap_err().to_string();
+        assert!(Preset::ALL.iter().all(|p| unknown.contains(p.name())), "{unknown}");
         let mut absurd = DenseDepthConfig::new(DenseNetConfig::tiny());
         absurd.encoder.growth_rate = 1 << 40;
-        assert!(absurd.check().unwrap_err().contains("growth_rate"));
+        assert!(absurd.check().unwrap_err().to_string().contains("growth_rate"));
         absurd = DenseDepthConfig::new(DenseNetConfig::tiny()).with_decoder_width(0.001);
-        assert!(absurd.check().unwrap_err().contains("decoder_width"));
+        assert!(absurd.check().unwrap_err().to_string().contains("decoder_width"));
     }
 }

@@ -51,10 +51,10 @@ impl DenseDepth {
 
     /// Whether this network takes an input of shape `[N, C, H, W]`: its channel count, both
     /// sides at least 29 px. Callers with inputs from outside check here and report the error.
-    pub fn check_input(&self, [_, c, h, w]: [usize; 4]) -> Result<(), String> {
+    pub fn check_input(&self, [_, c, h, w]: [usize; 4]) -> Result<(), crate::ConfigError> {
         let want = self.encoder.conv0.weight.dims()[1];
         if c != want {
-            return Err(format!("this DenseDepth takes {want} input channels ([N, {want}, H, W]), got {c}"));
+            return Err(crate::ConfigError::InputChannels { want, got: c });
         }
         DenseDepthConfig::check_input_hw([h, w])
     }
@@ -89,9 +89,9 @@ mod tests {
         let config = DenseDepthConfig::new(crate::network::DenseNetConfig::tiny());
         let model = config.clone().with_input(crate::InputChannels::RgbDifference).init(&device);
         assert_eq!(model.check_input([1, 6, 570, 570]), Ok(()));
-        let e = model.check_input([1, 3, 570, 570]).unwrap_err();
+        let e = model.check_input([1, 3, 570, 570]).unwrap_err().to_string();
         assert!(e.contains("takes 6 input channels") && e.contains("got 3"), "{e}");
-        let e = config.init(&device).check_input([2, 3, 570, 20]).unwrap_err();
+        let e = config.init(&device).check_input([2, 3, 570, 20]).unwrap_err().to_string();
         assert!(e.contains("570x20") && e.contains("at least 29"), "{e}");
     }
 

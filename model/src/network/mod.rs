@@ -7,7 +7,7 @@ mod densedepth;
 mod densenet;
 mod upsample;
 
-pub use config::{DenseDepthConfig, DenseNetConfig};
+pub use config::{ConfigError, DenseDepthConfig, DenseNetConfig, Preset};
 pub use decoder::{Decoder, UpBlock};
 pub use densedepth::DenseDepth;
 pub use densenet::{DenseBlock, DenseLayer, DenseNetEncoder, Skips, Transition, fold_batch_norm};
