@@ -46,8 +46,7 @@ pub enum OnBadRow {
 
 /// Tilts beyond this (degrees) would turn the indicator's base towards the sensor.
 pub const MAX_TILT_DEG: f32 = 90.0;
-/// Raised further than this (mm), nothing of any kit reaches a fingertip sensor.
-pub const MIN_Z_TRAVEL_MM: f32 = -50.0;
+pub use crate::touch::MIN_Z_TRAVEL_MM;
 
 /// A labelling job.
 pub struct Labeller<'a> {

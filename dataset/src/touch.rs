@@ -11,7 +11,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::generate::build_scene;
 use crate::kit::{Kit, Trial};
-use crate::label::MIN_Z_TRAVEL_MM;
 use crate::raycast::{RayBundle, RayCaster, Skipping};
 
 /// What the log's z column measures.
@@ -64,6 +63,10 @@ impl ZReading {
         }
     }
 }
+
+/// Raised further than this (mm), nothing of any kit reaches a fingertip sensor: a log's z (as
+/// travel) is refused below it, and the search for first touch starts there.
+pub const MIN_Z_TRAVEL_MM: f32 = -50.0;
 
 /// Bisection stops when the first touch is known this closely (mm).
 pub const TOUCH_TOLERANCE_MM: f32 = 0.002;

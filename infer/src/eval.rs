@@ -21,7 +21,7 @@ pub use formats::stats::Summary;
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ImageErrors {
     pub id: u32,
-    pub split: String,
+    pub split: formats::Split,
     /// Mean absolute error over useful pixels (mm).
     pub l1_mm: f64,
     /// Mean squared error over useful pixels (mm^2), the paper's "L2".
@@ -92,7 +92,7 @@ pub fn boundary_band(true_mm: &[f32], size: usize, radius: usize) -> Vec<bool> {
 }
 
 impl ImageErrors {
-    pub fn of(id: u32, split: &str, pred_mm: &[f32], true_mm: &[f32], mask: &[bool]) -> Self {
+    pub fn of(id: u32, split: formats::Split, pred_mm: &[f32], true_mm: &[f32], mask: &[bool]) -> Self {
         let (mut n, mut l1, mut l2, mut zero) = (0usize, 0f64, 0f64, 0f64);
         let (mut nc, mut cl1, mut czero) = (0usize, 0f64, 0f64);
         for ((&p, &t), &m) in pred_mm.iter().zip(true_mm).zip(mask) {
@@ -127,7 +127,7 @@ impl ImageErrors {
         let per_boundary = |s: f64| if nb > 0 { s / nb as f64 } else { f64::NAN };
         ImageErrors {
             id,
-            split: split.to_string(),
+            split,
             l1_mm: l1 / n,
             l2_mm: l2 / n,
             contact_l1_mm: per_contact(cl1),
@@ -281,7 +281,7 @@ pub fn evaluate_dataset(
                 skipped += 1;
                 gated_contact += usize::from(truth.depth_mm.iter().any(|&d| d > sensor::CONTACT_THRESHOLD_MM));
             }
-            errors.push(ImageErrors::of(id, name, &pred.depth_mm, &truth.depth_mm, &predictor.mask));
+            errors.push(ImageErrors::of(id, split, &pred.depth_mm, &truth.depth_mm, &predictor.mask));
             if (k + 1) % 50 == 0 {
                 eprintln!("{name}: {}/{}", k + 1, chosen.len());
             }
@@ -316,7 +316,7 @@ pub fn evaluate_dataset(
     for e in &rows {
         csv.write_record([
             e.id.to_string(),
-            e.split.clone(),
+            e.split.name().to_string(),
             e.contact_l1_mm.to_string(),
             e.zero_contact_l1_mm.to_string(),
             e.contact_pixels.to_string(),
@@ -352,14 +352,14 @@ mod tests {
         let truth = [0.0, 0.0, 1.0, 2.0, 9.0];
         let pred = [0.5, 0.0, 1.5, 1.0, 0.0];
         let mask = [true, true, true, true, false];
-        let e = ImageErrors::of(3, "test", &pred, &truth, &mask);
+        let e = ImageErrors::of(3, formats::Split::Test, &pred, &truth, &mask);
         assert!((e.l1_mm - 2.0 / 4.0).abs() < 1e-12);
         assert!((e.l2_mm - (0.25 + 0.25 + 1.0) / 4.0).abs() < 1e-12);
         assert!((e.contact_l1_mm - 1.5 / 2.0).abs() < 1e-12);
         assert!((e.zero_l1_mm - 3.0 / 4.0).abs() < 1e-12);
         assert!((e.zero_contact_l1_mm - 1.5).abs() < 1e-12);
         assert_eq!(e.contact_pixels, 2);
-        let none = ImageErrors::of(4, "test", &[0.0; 2], &[0.0; 2], &[true; 2]);
+        let none = ImageErrors::of(4, formats::Split::Test, &[0.0; 2], &[0.0; 2], &[true; 2]);
         assert!(none.contact_l1_mm.is_nan() && none.l1_mm == 0.0);
     }
 
@@ -392,19 +392,19 @@ mod tests {
                 *p += 0.5;
             }
         }
-        let e = ImageErrors::of(1, "test", &pred, &truth, &vec![true; size * size]);
+        let e = ImageErrors::of(1, formats::Split::Test, &pred, &truth, &vec![true; size * size]);
         assert!((e.boundary_l1_mm - 0.5).abs() < 1e-6, "{e:?}");
         assert_eq!(e.boundary_pixels, band3.iter().filter(|&&b| b).count());
         // Zeros err by the true depth on the band: 1 mm on its contact half, 0 outside.
         let inside = band3.iter().zip(&truth).filter(|&(&b, &t)| b && t > 0.0).count();
         assert!((e.zero_boundary_l1_mm - inside as f64 / e.boundary_pixels as f64).abs() < 1e-9);
-        let flat = ImageErrors::of(2, "test", &[0.0; 16], &[0.0; 16], &[true; 16]);
+        let flat = ImageErrors::of(2, formats::Split::Test, &[0.0; 16], &[0.0; 16], &[true; 16]);
         assert!(flat.boundary_l1_mm.is_nan() && flat.boundary_pixels == 0);
     }
 
     #[test]
     fn stat_keys_are_the_written_ones() {
-        let stats = SplitStats::of(&[ImageErrors::of(1, "test", &[0.0; 4], &[1.0; 4], &[true; 4])], 0, 0);
+        let stats = SplitStats::of(&[ImageErrors::of(1, formats::Split::Test, &[0.0; 4], &[1.0; 4], &[true; 4])], 0, 0);
         let json = serde_json::to_value(&stats).unwrap();
         let counts = ["skipped_frames", "gated_contact_frames"];
         let keys: Vec<&String> = json.as_object().unwrap().keys().filter(|k| !counts.contains(&k.as_str())).collect();

@@ -165,7 +165,7 @@ fn samples_under_their_own_looks_are_read_against_their_own_untouched_frames() {
     let mean_l1: f64 = expected
         .iter()
         .zip(&truth)
-        .map(|(e, t)| infer::eval::ImageErrors::of(0, "test", &e.depth_mm, &t.depth_mm, mask).l1_mm)
+        .map(|(e, t)| infer::eval::ImageErrors::of(0, formats::Split::Test, &e.depth_mm, &t.depth_mm, mask).l1_mm)
         .sum::<f64>()
         / expected.len() as f64;
     let got = stats["test"].l1_mm.mean;

@@ -202,7 +202,7 @@ pub fn restore_model(dir: &Path, model: &DenseDepthConfig, device: &Device) -> R
 /// Restores the network (on `device`) and the optimiser from a checkpoint.
 pub fn restore(ckpt: &Path, state: &RunState, device: &Device) -> Result<(DenseDepth, ModuleOptimizer)> {
     let net = restore_model(ckpt, &state.model, device)?;
-    let optim = crate::fit::optimizer()
+    let optim = crate::config::optimizer()
         .from_bytes(read(ckpt, "optim.bpk")?)
         .with_context(|| format!("{}: not an optimiser record", ckpt.join("optim.bpk").display()))?;
     Ok((net, optim))

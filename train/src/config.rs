@@ -100,6 +100,11 @@ fn paper_range() -> [f32; 2] {
     model::PAPER_NET_RANGE
 }
 
+/// The optimiser every run uses (Adam, Burn's defaults); a checkpoint restores its state.
+pub fn optimizer() -> burn::optim::ModuleOptimizer {
+    burn::optim::AdamConfig::new().init()
+}
+
 /// A setting out of range: which one (with its command-line flag), its value and why.
 #[derive(Debug, thiserror::Error)]
 #[error("{flag} must be {rule}, got {value}")]

@@ -13,7 +13,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use burn::data::dataloader::batcher::Batcher;
 use burn::module::Module;
-use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::optim::ModuleOptimizer;
 use burn::tensor::{Device, Tensor};
 use formats::dataset::Split;
 use formats::output::OutputKind;
@@ -22,15 +22,10 @@ use formats::{Progress, SplitMix64};
 use model::{DenseDepth, DenseDepthConfig, DepthLossConfig};
 
 use crate::checkpoint::{self, RunState};
-use crate::config::{FitConfig, OnBadData};
+use crate::config::{FitConfig, OnBadData, optimizer};
 use crate::data::{DepthBatcher, DepthDataset};
 use crate::loader::BatchLoader;
 use crate::parallel::DataParallel;
-
-/// The optimiser every run uses (Adam, Burn's defaults).
-pub fn optimizer() -> ModuleOptimizer {
-    AdamConfig::new().init()
-}
 
 /// Where a run starts when there is no checkpoint: fresh weights or given ones.
 pub struct Start {

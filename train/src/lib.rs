@@ -13,8 +13,8 @@ mod loader;
 pub mod parallel;
 mod recipe;
 
-pub use config::{FitConfig, OnBadData, Schedule, SettingError};
-pub use fit::{Evaluation, Fitted, RunOptions, Start, fit, fit_on, fit_with, optimizer, permutation, select, validate};
+pub use config::{FitConfig, OnBadData, Schedule, SettingError, optimizer};
+pub use fit::{Evaluation, Fitted, RunOptions, Start, fit, fit_on, fit_with, permutation, select, validate};
 pub use formats::training::EpochMetrics;
 pub use loader::{BatchLoader, DecodedBatch};
 pub use recipe::{Recipe, RecipeNetwork};

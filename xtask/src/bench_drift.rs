@@ -251,9 +251,9 @@ fn measure(
         };
         let contact_px = depth.contact_px(CONTACT_THRESHOLD_MM).iter().filter(|&&c| c).count();
         match &f.truth_mm {
-            Some(truth) => {
-                tally.contact_l1_mm.push(ImageErrors::of(0, "test", &depth.depth_mm, truth, mask).contact_l1_mm)
-            }
+            Some(truth) => tally
+                .contact_l1_mm
+                .push(ImageErrors::of(0, formats::Split::Test, &depth.depth_mm, truth, mask).contact_l1_mm),
             None => {
                 tally.untouched += 1;
                 tally.gated += usize::from(!open);

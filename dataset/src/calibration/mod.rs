@@ -182,7 +182,7 @@ pub fn calibrate(img: &RgbImage, opts: &CalibrationOptions) -> Result<Calibratio
     let rim = rim::find_rim(&gray)?;
     let (uc, vc, r_rim) = rim.circle;
     let ind = &opts.indicator;
-    let profile = teeth::StripProfile::read(&channels, uc, vc, r_rim)?;
+    let profile = fold::StripProfile::read(&channels, uc, vc, r_rim)?;
     let map = fold::fold_map(&profile, r_rim, ind.pitch_deg, ind.teeth)?;
     let (edges, pulse_sigma_px, pulse_tail_px, offsets_sd) =
         teeth::locate_teeth(&profile, &map, r_rim, rim.radius_sd_px(), ind)?;

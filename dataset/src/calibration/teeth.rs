@@ -2,39 +2,10 @@
 //! folding it ([`super::fold`]), each drop's pulse placed ([`super::tooth_fit`]), and each
 //! side's pulses registered to the drops through the lens' odd symmetry ([`register`]).
 
-use super::fold::FoldedMap;
+use super::fold::{FoldedMap, StripProfile};
 use super::sawtooth::SawTooth;
 use super::tooth_fit::{self, ToothWindow};
-use super::{CalibrationError, MatchedEdge, Plane, fail};
-
-/// The strip's colour profile along the row through the centre: for each column between the
-/// rim's ends, the mean of the rows `vc - 1 ..= vc + 1` (bilinear), as signed offsets from the
-/// centre and RGB.
-pub(super) struct StripProfile {
-    pub(super) offsets_px: Vec<f64>,
-    pub(super) rgb: Vec<[f64; 3]>,
-}
-
-impl StripProfile {
-    pub(super) fn read(channels: &[Plane], uc: f64, vc: f64, r_rim: f64) -> Result<Self, CalibrationError> {
-        let (w, h) = (channels[0].w, channels[0].h);
-        if vc < 4.0 || vc + 4.0 >= h as f64 {
-            return fail("the optical centre's row is too close to the image's border");
-        }
-        let lo = (uc - r_rim).ceil().max(2.0) as i64;
-        let hi = (uc + r_rim).floor().min(w as f64 - 3.0) as i64;
-        let (offsets_px, rgb) = (lo..=hi)
-            .map(|u| {
-                let x = u as f64;
-                let rgb = std::array::from_fn(|c| {
-                    (-1..=1).map(|k| channels[c].at(x, vc + k as f64) as f64).sum::<f64>() / 3.0
-                });
-                (x - uc, rgb)
-            })
-            .unzip();
-        Ok(StripProfile { offsets_px, rgb })
-    }
-}
+use super::{CalibrationError, MatchedEdge, fail};
 
 /// Each tooth's drop on each side: the folded map's prediction, its pulse placed by the tooth
 /// fit and registered per side. Teeth whose pulse the fit does not find (hidden, broken, beyond

@@ -291,6 +291,25 @@ pub(crate) fn train_norm_relu<const D: usize>(norm: &BatchNorm, x: &Tensor<D>) -
     )))
 }
 
+/// `relu(norm.forward(x))`: in one pass on flex outside autodiff, as one fused operation in
+/// training on flex (here), through Burn's operations elsewhere.
+pub(crate) fn norm_relu<const D: usize>(norm: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
+    use super::flex::{flex_f32, from_flex};
+    use super::norm_relu::{inference_affine, scale_shift_relu_flex};
+    use burn::tensor::activation::relu;
+    if let Some(y) = train_norm_relu(norm, &x) {
+        return y;
+    }
+    let Some(input) = flex_f32(&x) else {
+        return relu(norm.forward(x));
+    };
+    let (scale, shift) = inference_affine(norm);
+    match (flex_f32(&scale), flex_f32(&shift)) {
+        (Some(scale), Some(shift)) => from_flex(scale_shift_relu_flex(&input, slice(&scale), slice(&shift))),
+        _ => relu(norm.forward(x)),
+    }
+}
+
 #[cfg(all(test, feature = "autodiff"))]
 mod tests {
     use burn::module::Param;

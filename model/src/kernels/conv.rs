@@ -15,10 +15,10 @@ use burn::tensor::activation::{leaky_relu, relu};
 use burn::tensor::{DType, Tensor};
 use burn_flex::FlexTensor;
 
-use super::conv_forward::{self, Epilogue};
+use super::conv_forward;
 use super::flex::{contiguous, flex_f32, flex_kind, flex_tensor, from_flex, slice};
-use super::gemm_conv::{self, ConvShape};
-use crate::network::Activation;
+use super::gemm_conv;
+use super::shared::{Activation, ConvShape, Epilogue};
 
 /// A stride-1, square-kernel convolution with the same padding on every side.
 #[backend_extension(Flex, Autodiff: cfg(feature = "autodiff"))]

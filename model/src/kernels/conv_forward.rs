@@ -13,9 +13,8 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
-use super::gemm_conv::{ConvShape, SharedMut, column_chunks, matmul};
+use super::shared::{Activation, ConvShape, Epilogue, Prologue, SharedMut, column_chunks, matmul};
 use super::winograd;
-use crate::network::Activation;
 
 /// Output positions per task when the input is gathered, and the most gathered rows (channel
 /// and tap pairs) at a time: together about 2 MB per thread, which the product reads from cache.
@@ -27,46 +26,6 @@ const POINTWISE_COLUMNS: usize = 2048;
 thread_local! {
     /// Each worker's gathered block, kept between calls so it is allocated once.
     static GATHERED: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
-}
-
-/// `max(0, x * scale[c] + shift[c])` on each input channel `c` before the convolution: an
-/// eval-mode batch norm and ReLU. Padding stays zero, as when the ReLU's output is padded.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Prologue<'a> {
-    pub scale: &'a [f32],
-    pub shift: &'a [f32],
-}
-
-/// `activation(y * scale[o] + shift[o])` on each output channel `o`, where each is optional.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Epilogue<'a> {
-    pub scale: Option<&'a [f32]>,
-    pub shift: Option<&'a [f32]>,
-    pub activation: Activation,
-}
-
-impl<'a> Epilogue<'a> {
-    pub fn bias(bias: Option<&'a [f32]>, activation: Activation) -> Self {
-        Epilogue { scale: None, shift: bias, activation }
-    }
-
-    pub(crate) fn is_identity(&self) -> bool {
-        self.scale.is_none() && self.shift.is_none() && self.activation == Activation::Identity
-    }
-
-    pub(crate) fn apply(&self, channel: usize, row: &mut [f32]) {
-        let scale = self.scale.map_or(1.0, |s| s[channel]);
-        let shift = self.shift.map_or(0.0, |s| s[channel]);
-        match self.activation {
-            Activation::Identity => row.iter_mut().for_each(|v| *v = *v * scale + shift),
-            Activation::Relu => row.iter_mut().for_each(|v| *v = (*v * scale + shift).max(0.0)),
-            Activation::Leaky(slope) => row.iter_mut().for_each(|v| {
-                let slope = slope as f32;
-                let y = *v * scale + shift;
-                *v = if y >= 0.0 { y } else { y * slope };
-            }),
-        }
-    }
 }
 
 /// Output indices `i` whose input index `i * stride + tap - padding` lies in `0..input`.

@@ -14,11 +14,10 @@ use burn_flex::FlexTensor;
 
 use super::DenseLayerParams;
 use super::conv::{flex_bias, gemm_padding};
-use super::conv_forward::{Epilogue, Prologue, forward_image};
+use super::conv_forward::forward_image;
 use super::flex::{flex_f32, flex_tensor, from_flex, slice};
-use super::gemm_conv::ConvShape;
 use super::norm_relu::inference_affine;
-use crate::network::Activation;
+use super::shared::{Activation, ConvShape, Epilogue, Prologue};
 
 /// One layer's parameters as flex tensors and plain values.
 struct Layer {

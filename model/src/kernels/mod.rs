@@ -29,19 +29,24 @@ mod conv;
 mod conv_forward;
 mod dense_block;
 mod flex;
+// The shared leaf: the matrix product and the pointer for disjoint writes.
 #[allow(unsafe_code)]
 #[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
 mod gemm_conv;
 mod norm_relu;
 mod pool;
+#[allow(unsafe_code)]
+mod shared;
 mod upsample;
 // Matrix products through raw pointers into per-thread buffers and disjoint output rows.
 #[allow(unsafe_code)]
 mod winograd;
 
+pub(crate) use batch_norm_train::norm_relu;
 pub(crate) use conv::conv2d_act;
-pub(crate) use norm_relu::{inference_affine, norm_relu};
+pub(crate) use norm_relu::inference_affine;
 pub(crate) use pool::max_pool2d;
+pub use shared::Activation;
 pub(crate) use upsample::{taps as bilinear_taps, upsample_concat};
 
 /// What the dense-block kernel needs of one dense layer: BN-ReLU-Conv1x1-BN-ReLU-Conv, where the

@@ -8,11 +8,10 @@
 
 use burn::nn::BatchNorm;
 use burn::tensor::Tensor;
-use burn::tensor::activation::relu;
 use burn_flex::FlexTensor;
 use rayon::prelude::*;
 
-use super::flex::{flex_f32, flex_tensor, from_flex, slice};
+use super::flex::{flex_tensor, slice};
 
 /// The kernel: `x` holds planes of `plane` elements, channel after channel, image after image.
 fn scale_shift_relu_slices(x: &[f32], plane: usize, scale: &[f32], shift: &[f32]) -> Vec<f32> {
@@ -38,22 +37,6 @@ pub(crate) fn inference_affine(norm: &BatchNorm) -> (Tensor<1>, Tensor<1>) {
     (scale, shift)
 }
 
-/// `relu(norm.forward(x))`: in one pass on flex outside autodiff, as one fused operation in
-/// training on flex (`batch_norm_train`), through Burn's operations elsewhere.
-pub(crate) fn norm_relu<const D: usize>(norm: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
-    if let Some(y) = super::batch_norm_train::train_norm_relu(norm, &x) {
-        return y;
-    }
-    let Some(input) = flex_f32(&x) else {
-        return relu(norm.forward(x));
-    };
-    let (scale, shift) = inference_affine(norm);
-    match (flex_f32(&scale), flex_f32(&shift)) {
-        (Some(scale), Some(shift)) => from_flex(scale_shift_relu_flex(&input, slice(&scale), slice(&shift))),
-        _ => relu(norm.forward(x)),
-    }
-}
-
 /// `max(0, x * scale[c] + shift[c])` for a contiguous f32 flex `x` [batch, channels, ...].
 pub(crate) fn scale_shift_relu_flex(x: &FlexTensor, scale: &[f32], shift: &[f32]) -> FlexTensor {
     let dims = x.layout().shape().to_vec();
@@ -64,7 +47,9 @@ pub(crate) fn scale_shift_relu_flex(x: &FlexTensor, scale: &[f32], shift: &[f32]
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::norm_relu;
     use burn::nn::BatchNormConfig;
+    use burn::tensor::activation::relu;
     use burn::tensor::{Distribution, Tolerance};
 
     /// Against Burn's inference batch norm and ReLU, with running statistics and affine

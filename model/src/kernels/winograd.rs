@@ -12,8 +12,7 @@
 
 use rayon::prelude::*;
 
-use super::conv_forward::{Epilogue, Prologue};
-use super::gemm_conv::{ConvShape, SharedMut, column_chunks, matmul};
+use super::shared::{ConvShape, Epilogue, Prologue, SharedMut, column_chunks, matmul};
 
 /// Transformed input held per thread (16 x channels x tiles, f32): the channel block is cut so
 /// the block stays about 1 MB.

@@ -13,14 +13,7 @@ pub use densedepth::DenseDepth;
 pub use densenet::{DenseBlock, DenseLayer, DenseNetEncoder, Skips, Transition, fold_batch_norm};
 pub use upsample::{Upsample, interpolation_matrix, upsample_bilinear, upsample_mode_for};
 
-/// What follows a convolution.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Activation {
-    Identity,
-    Relu,
-    /// LeakyReLU with this negative slope (f64 as Burn's `leaky_relu` takes it).
-    Leaky(f64),
-}
+pub use crate::kernels::Activation;
 
 /// `activation(conv.forward(x))`.
 pub(crate) fn conv2d_act(

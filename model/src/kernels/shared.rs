@@ -1,0 +1,184 @@
+//! The pieces every convolution kernel shares, at the bottom of `kernels/` (nothing here
+//! imports another kernel): a convolution's shape, what rides along before and after it, the
+//! activation that follows it, the matrix product and the pointer that lets rayon tasks write
+//! disjoint parts of one buffer.
+
+/// What follows a convolution.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Activation {
+    Identity,
+    Relu,
+    /// LeakyReLU with this negative slope (f64 as Burn's `leaky_relu` takes it).
+    Leaky(f64),
+}
+
+/// Shapes of one convolution: `x` is `[batch, channels_in, height, width]`, the weight
+/// `[channels_out, channels_in, kernel, kernel]`, dilation 1, `padding` on every side. Only the
+/// forward takes a `stride` other than 1 (the gradients assert it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct ConvShape {
+    pub batch: usize,
+    pub channels_in: usize,
+    pub channels_out: usize,
+    pub height: usize,
+    pub width: usize,
+    pub kernel: usize,
+    pub padding: usize,
+    pub stride: usize,
+}
+
+impl ConvShape {
+    pub fn out_height(&self) -> usize {
+        (self.height + 2 * self.padding - self.kernel) / self.stride + 1
+    }
+
+    pub fn out_width(&self) -> usize {
+        (self.width + 2 * self.padding - self.kernel) / self.stride + 1
+    }
+
+    /// Row stride of the padded image (and of the spread output gradient).
+    pub(crate) fn padded_width(&self) -> usize {
+        self.width + 2 * self.padding
+    }
+
+    /// The 1x1 unpadded case needs no padded copy: the image itself is the matrix.
+    pub(crate) fn is_pointwise(&self) -> bool {
+        self.kernel == 1 && self.padding == 0 && self.stride == 1
+    }
+
+    /// Elements per channel of the padded image: one spare row at the bottom, because the window
+    /// of the last tap runs `kernel - 1` elements past the last padded row.
+    pub(crate) fn padded_len(&self) -> usize {
+        if self.is_pointwise() {
+            self.height * self.width
+        } else {
+            (self.height + 2 * self.padding + 1) * self.padded_width()
+        }
+    }
+
+    /// Columns of one output matrix: output rows at the padded row stride.
+    pub(crate) fn columns(&self) -> usize {
+        self.out_height() * self.padded_width()
+    }
+
+    /// The convolution that gives the input gradient: the output gradient convolved with the
+    /// weight transposed and flipped, padded by `kernel - 1 - padding`.
+    pub fn transposed(&self) -> ConvShape {
+        assert_eq!(self.stride, 1, "gradients of strided convolutions are Burn's");
+        ConvShape {
+            batch: self.batch,
+            channels_in: self.channels_out,
+            channels_out: self.channels_in,
+            height: self.out_height(),
+            width: self.out_width(),
+            kernel: self.kernel,
+            padding: self.kernel - 1 - self.padding,
+            stride: 1,
+        }
+    }
+}
+
+/// `max(0, x * scale[c] + shift[c])` on each input channel `c` before the convolution: an
+/// eval-mode batch norm and ReLU. Padding stays zero, as when the ReLU's output is padded.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Prologue<'a> {
+    pub scale: &'a [f32],
+    pub shift: &'a [f32],
+}
+
+/// `activation(y * scale[o] + shift[o])` on each output channel `o`, where each is optional.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Epilogue<'a> {
+    pub scale: Option<&'a [f32]>,
+    pub shift: Option<&'a [f32]>,
+    pub activation: Activation,
+}
+
+impl<'a> Epilogue<'a> {
+    pub fn bias(bias: Option<&'a [f32]>, activation: Activation) -> Self {
+        Epilogue { scale: None, shift: bias, activation }
+    }
+
+    pub(crate) fn is_identity(&self) -> bool {
+        self.scale.is_none() && self.shift.is_none() && self.activation == Activation::Identity
+    }
+
+    pub(crate) fn apply(&self, channel: usize, row: &mut [f32]) {
+        let scale = self.scale.map_or(1.0, |s| s[channel]);
+        let shift = self.shift.map_or(0.0, |s| s[channel]);
+        match self.activation {
+            Activation::Identity => row.iter_mut().for_each(|v| *v = *v * scale + shift),
+            Activation::Relu => row.iter_mut().for_each(|v| *v = (*v * scale + shift).max(0.0)),
+            Activation::Leaky(slope) => row.iter_mut().for_each(|v| {
+                let slope = slope as f32;
+                let y = *v * scale + shift;
+                *v = if y >= 0.0 { y } else { y * slope };
+            }),
+        }
+    }
+}
+
+/// A pointer that rayon tasks may share to write disjoint parts of one buffer.
+#[derive(Clone, Copy)]
+pub(crate) struct SharedMut(pub(crate) *mut f32);
+// SAFETY: a `SharedMut` is only made from a `&mut [f32]` that outlives the parallel loop using
+// it (`conv_forward::forward_image`, `winograd::forward_image` and `transform_weight`), and each
+// task writes only its own disjoint columns or rows, so sending the pointer to another thread
+// creates no aliasing writes.
+unsafe impl Send for SharedMut {}
+// SAFETY: as for `Send`: shared references to it only ever copy the pointer out, and every write
+// through the copies goes to a range no other task touches.
+unsafe impl Sync for SharedMut {}
+
+impl SharedMut {
+    /// Through a method, so that closures capture the whole (Send) wrapper, not the raw field.
+    pub(crate) fn at(self, offset: usize) -> *mut f32 {
+        self.0.wrapping_add(offset)
+    }
+}
+
+/// Splits `n` columns into ranges of at most `max` and about two per thread, none narrower than
+/// `min` unless `n` is.
+pub(crate) fn column_chunks(n: usize, min: usize, max: usize) -> Vec<std::ops::Range<usize>> {
+    let want = (2 * rayon::current_num_threads()).max(1);
+    let size = n.div_ceil(want).clamp(min, max.max(min)).min(n.max(1));
+    (0..n).step_by(size).map(|start| start..(start + size).min(n)).collect()
+}
+
+/// `dst[m, n] (+)= lhs[m, k] * rhs[k, n]` with element strides (column, row) for each matrix.
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn matmul(
+    [m, n, k]: [usize; 3],
+    dst: *mut f32,
+    [dst_cs, dst_rs]: [usize; 2],
+    accumulate: bool,
+    lhs: *const f32,
+    [lhs_cs, lhs_rs]: [usize; 2],
+    rhs: *const f32,
+    [rhs_cs, rhs_rs]: [usize; 2],
+) {
+    // SAFETY: the callers pass pointers and strides that stay inside their buffers.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst,
+            dst_cs as isize,
+            dst_rs as isize,
+            accumulate,
+            lhs,
+            lhs_cs as isize,
+            lhs_rs as isize,
+            rhs,
+            rhs_cs as isize,
+            rhs_rs as isize,
+            1.0f32,
+            1.0f32,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        )
+    }
+}
