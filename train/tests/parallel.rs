@@ -152,12 +152,22 @@ fn a_gpu_share_agrees_with_a_cpu_share_and_a_run_over_both_learns() {
     let on_cpu = DataParallel::new_allowing_repeats(&[cpu.clone(), cpu.clone()], s.batcher, s.loss).unwrap();
     let on_cpu = on_cpu.step(&copy, s.items.clone()).unwrap();
     assert!((on_gpu.loss - on_cpu.loss).abs() <= 1e-4 * on_cpu.loss.abs(), "{} vs {}", on_gpu.loss, on_cpu.loss);
-    for (g, c) in gradients(&net, &on_gpu.grads).iter().zip(gradients(&net, &on_cpu.grads)) {
+    // A tensor whose gradient is zero in exact arithmetic (a convolution's bias ahead of a batch
+    // norm) holds only rounding noise, whose size follows the gradients it was summed from, not its
+    // own: so each tensor is held to 1e-3 of its own scale, or 1e-5 of the largest gradient's.
+    let (g_all, c_all) = (gradients(&net, &on_gpu.grads), gradients(&net, &on_cpu.grads));
+    let largest = c_all.iter().flatten().flatten().fold(0f32, |m, v| m.max(v.abs()));
+    assert!(largest > 0.0, "the step has gradients");
+    for (g, c) in g_all.iter().zip(&c_all) {
         assert_eq!(g.is_some(), c.is_some());
         if let (Some(g), Some(c)) = (g, c) {
-            let scale = g.iter().chain(&c).fold(0f32, |m, v| m.max(v.abs()));
-            let worst = g.iter().zip(&c).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
-            assert!(close(g, &c, 1e-3), "GPU and CPU shares agree: worst difference {worst} at scale {scale}");
+            let scale = g.iter().chain(c).fold(0f32, |m, v| m.max(v.abs()));
+            let worst = g.iter().zip(c).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+            let allowed = (1e-3 * scale).max(1e-5 * largest);
+            assert!(
+                g.len() == c.len() && worst <= allowed,
+                "GPU and CPU shares agree: worst difference {worst} at scale {scale} (largest gradient {largest})"
+            );
         }
     }
 
