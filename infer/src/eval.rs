@@ -234,7 +234,7 @@ pub fn evaluate_dataset(
     data: &Path,
     splits: &[Split],
     out: &Path,
-) -> Result<BTreeMap<String, SplitStats>> {
+) -> Result<BTreeMap<Split, SplitStats>> {
     formats::output::check_dir(out, OutputKind::Evaluation, &[data, &predictor.dir])?;
     let manifest = Manifest::load(data)?;
     if let Some(note) = other_unit(&manifest.sensor, &predictor.file.sensor) {
@@ -295,7 +295,7 @@ pub fn evaluate_dataset(
             s.l2_mm.mean
         );
         groups.push((name, errors.iter().map(|e| e.l1_mm).collect::<Vec<_>>()));
-        stats.insert(name.to_string(), s);
+        stats.insert(split, s);
         rows.extend(errors);
     }
     let stats_json = serde_json::to_string_pretty(&stats)?;

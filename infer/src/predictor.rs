@@ -153,9 +153,18 @@ impl Predictor {
     /// frame, a frame of another size, or one whose colours are BGR-ordered against the unit's
     /// reference frame is refused with the reason.
     pub fn read_frame(&self, path: &Path) -> Result<RgbImage, InferError> {
-        let crop = sensor::frame::read_crop(path, &self.file.sensor)?;
-        if let Some(reference) = &self.reference {
-            sensor::frame::check_channel_order(path, &crop, reference, &self.mask)?;
+        self.accept_frame(path, sensor::frame::read(path)?, true)
+    }
+
+    /// A decoded camera frame made this unit's crop, the one way every frame comes in (a file,
+    /// or a stream's frame, decoded or a camera's pixels): the full frame cut to the crop, or
+    /// the crop itself (its size checked here, once), colour required; with `check_channels`,
+    /// BGR order against the reference refused (a stream checks its first frame only). `name`
+    /// names the frame in errors.
+    pub fn accept_frame(&self, name: &Path, image: RgbImage, check_channels: bool) -> Result<RgbImage, InferError> {
+        let crop = sensor::frame::crop(name, image, &self.file.sensor)?;
+        if let (true, Some(reference)) = (check_channels, &self.reference) {
+            sensor::frame::check_channel_order(name, &crop, reference, &self.mask)?;
         }
         Ok(crop)
     }
@@ -169,27 +178,39 @@ impl Predictor {
     /// Like [`predict`](Self::predict), also saying whether the network ran.
     pub fn predict_gated(&self, frame: &RgbImage) -> Result<(DepthMap, bool), InferError> {
         self.check(frame)?;
+        Ok(self.predict_crop(frame))
+    }
+
+    /// [`predict_gated`](Self::predict_gated) for a frame known to be the crop: one that
+    /// [`accept_frame`](Self::accept_frame) returned, whose size is not checked again.
+    pub(crate) fn predict_crop(&self, frame: &RgbImage) -> (DepthMap, bool) {
         if !self.has_contact(frame) {
-            return Ok((DepthMap::zeros(self.file.sensor.crop_size_px), false));
+            return (DepthMap::zeros(self.file.sensor.crop_size_px), false);
         }
-        Ok((self.predict_network(std::slice::from_ref(frame))?.remove(0), true))
+        (self.network_on_crops(std::slice::from_ref(frame)).remove(0), true)
     }
 
     /// The network's depth maps for a batch of frames (no contact gate).
     pub fn predict_network(&self, frames: &[RgbImage]) -> Result<Vec<DepthMap>, InferError> {
+        frames.iter().try_for_each(|f| self.check(f))?;
+        Ok(self.network_on_crops(frames))
+    }
+
+    fn network_on_crops(&self, frames: &[RgbImage]) -> Vec<DepthMap> {
         if frames.is_empty() {
-            return Ok(Vec::new());
+            return Vec::new();
         }
-        let input = self.input(frames)?;
-        Ok(self.depth_maps(self.net.forward(input)))
+        self.depth_maps(self.net.forward(self.input_of_crops(frames)))
     }
 
     /// The network's input for a batch of frames: resized, RGB, values / 255 (and the
     /// reference difference if the model reads it).
     pub fn input(&self, frames: &[RgbImage]) -> Result<Tensor<4>, InferError> {
-        for f in frames {
-            self.check(f)?;
-        }
+        frames.iter().try_for_each(|f| self.check(f))?;
+        Ok(self.input_of_crops(frames))
+    }
+
+    fn input_of_crops(&self, frames: &[RgbImage]) -> Tensor<4> {
         let [h, w] = self.encoder.hw();
         let c = self.encoder.channels().count();
         let input: Vec<f32> = frames
@@ -199,7 +220,7 @@ impl Predictor {
                 None => self.encoder.encode(f),
             })
             .collect();
-        Ok(Tensor::<4>::from_data(TensorData::new(input, [frames.len(), c, h, w]), &self.device))
+        Tensor::<4>::from_data(TensorData::new(input, [frames.len(), c, h, w]), &self.device)
     }
 
     /// The drift [`input`](Self::input) takes out of `frame`, if any.

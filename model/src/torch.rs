@@ -7,6 +7,14 @@
 //! ```
 //!
 //! loads it into the reference model. [`crate::import::load_pytorch`] reads such a file back.
+//!
+//! Reading uses burn-store's `PytorchStore`/`SafetensorsStore` with its PyTorch adapter and regex
+//! key remapping ([`crate::import`]). Writing does not, for two reasons a save through
+//! `SafetensorsStore` with `BurnToPyTorchAdapter` cannot meet: the reference names its layers from
+//! one (`denselayer1`) where Burn's vectors count from zero (`layers.0`), a shift no regex
+//! replacement can make; and a strict `load_state_dict` asks for tensors the module does not hold
+//! (each BatchNorm's `num_batches_tracked`, torchvision's classifier), which the store writes only
+//! from the module. `tests/torch_names.rs` checks the result against the PyTorch fixture's keys.
 
 use std::collections::HashMap;
 
@@ -51,16 +59,28 @@ const CLASSES: usize = 1000;
 const CLASSIFIER_WEIGHT: &str = "encoder.original_model.classifier.weight";
 const CLASSIFIER_BIAS: &str = "encoder.original_model.classifier.bias";
 
+/// A tensor that could not be written out.
+#[derive(Debug, thiserror::Error)]
+pub enum TorchExportError {
+    /// A tensor's data could not be read or converted to f32.
+    #[error("{name}: {message}")]
+    Tensor { name: String, message: String },
+    /// The safetensors encoder refused the collection.
+    #[error("safetensors: {0}")]
+    Encode(#[from] safetensors::SafeTensorError),
+}
+
 /// The model's weights as a safetensors `state_dict` under the reference model's names, with
 /// what PyTorch's own `state_dict` has beside them: each BatchNorm's `num_batches_tracked` (0,
 /// int64) and the encoder's unused ImageNet classifier (zeros).
-pub fn state_dict_safetensors(model: &DenseDepth) -> Result<Vec<u8>, String> {
+pub fn state_dict_safetensors(model: &DenseDepth) -> Result<Vec<u8>, TorchExportError> {
     let mut tensors: Vec<(String, safetensors::Dtype, Vec<usize>, Vec<u8>)> = Vec::new();
     for t in model.collect(None, None, true) {
         let path = t.name.clone();
-        let data = burn::store::bridge::into_data(t).map_err(|e| format!("{path}: {e}"))?;
+        let failed = |message: String| TorchExportError::Tensor { name: path.clone(), message };
+        let data = burn::store::bridge::into_data(t).map_err(|e| failed(e.to_string()))?;
         let shape = data.shape().to_vec();
-        let values = data.convert::<f32>().try_into_vec::<f32>().map_err(|e| format!("{path}: {e:?}"))?;
+        let values = data.convert::<f32>().try_into_vec::<f32>().map_err(|e| failed(format!("{e:?}")))?;
         let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
         let key = densedepth_key(&path);
         if let Some(norm) = key.strip_suffix(".running_var") {
@@ -91,9 +111,8 @@ pub fn state_dict_safetensors(model: &DenseDepth) -> Result<Vec<u8>, String> {
         .map(|(k, dtype, shape, bytes)| {
             safetensors::tensor::TensorView::new(*dtype, shape.clone(), bytes).map(|v| (k.clone(), v))
         })
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| e.to_string())?;
+        .collect::<Result<Vec<_>, _>>()?;
     // `format: pt` is what `safetensors.torch.save_file` writes.
     let metadata = HashMap::from([("format".to_string(), "pt".to_string())]);
-    safetensors::serialize(views, Some(metadata)).map_err(|e| e.to_string())
+    Ok(safetensors::serialize(views, Some(metadata))?)
 }

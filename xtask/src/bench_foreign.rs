@@ -131,6 +131,6 @@ fn one(
     train::export::export_net(&fitted.net, &fitted.state, &bundle, &[&run_dir])?;
     let predictor = Predictor::load(&bundle, &device)?;
     let stats = infer::eval::evaluate_dataset(&predictor, &data, &[Split::Test], &dir.join("eval"))?;
-    let test = stats.get("test").cloned().context("no test split")?;
+    let test = stats.get(&Split::Test).cloned().context("no test split")?;
     Ok(Outcome { calibration_px, stated_px: cal.uncertainty_px, test, train_minutes })
 }

@@ -90,7 +90,7 @@ pub fn run(args: Args) -> Result<()> {
             step_times.push(start.elapsed().as_secs_f64());
         }
     }
-    let step_s = crate::timing::median(step_times.clone());
+    let step_s = formats::stats::median(step_times.clone());
     let step_rate = args.batch as f64 / step_s;
     println!(
         "train step alone: median {:.1} ms over {} steps, {step_rate:.2} samples/s",

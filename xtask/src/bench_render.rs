@@ -8,7 +8,8 @@ use dataset::generate::{build_scene, draw_sample};
 use dataset::{Kit, RayBundle, RayCaster, Renderer, SawToothShot, SensorUnit, Skipping};
 use formats::dataset::GeneratorParams;
 
-use crate::timing::{median, once, time};
+use crate::timing::{once, time};
+use formats::stats::median;
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -166,7 +166,6 @@ fn summarise<'a>(rows: impl Iterator<Item = &'a Row>) -> Vec<Summary> {
     for r in rows {
         groups.entry((r.preset.clone(), r.input_px, r.backend.clone(), r.machine.clone())).or_default().push(r);
     }
-    let median = |v: Vec<f64>| formats::stats::median(v);
     groups
         .into_iter()
         .map(|((preset, input_px, backend, machine), g)| {
@@ -175,8 +174,8 @@ fn summarise<'a>(rows: impl Iterator<Item = &'a Row>) -> Vec<Summary> {
                 seeds: g.len(),
                 params_m: g[0].params_m,
                 train_min: Spread::of(&field(|r| r.train_min)).mean,
-                network_ms: median(field(|r| r.network_ms)),
-                end_to_end_ms: median(field(|r| r.end_to_end_ms)),
+                network_ms: formats::stats::median(field(|r| r.network_ms)),
+                end_to_end_ms: formats::stats::median(field(|r| r.end_to_end_ms)),
                 contact: Spread::of(&field(|r| r.test_contact_l1_mm)),
                 l1: Spread::of(&field(|r| r.test_l1_mm)),
                 boundary: Spread::of(&field(|r| r.test_boundary_l1_mm)),
@@ -268,7 +267,7 @@ pub fn run(args: Args) -> Result<()> {
                     let times = infer::bench::time_frames(&predictor, &frame, &untouched, args.reps)?;
                     let eval_dir = run_dir.join(format!("eval-{backend}"));
                     let stats = infer::eval::evaluate_dataset(&predictor, &data, &[Split::Test], &eval_dir)?;
-                    let test = &stats["test"];
+                    let test = &stats[&Split::Test];
                     let row = Row {
                         preset: preset_name.clone(),
                         input_px: side,

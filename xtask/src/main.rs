@@ -7,6 +7,7 @@ mod bench_calibrate;
 mod bench_drift;
 mod bench_finetune;
 mod bench_foreign;
+mod bench_icp_index;
 mod bench_loader;
 mod bench_looks;
 mod bench_model;
@@ -64,6 +65,9 @@ enum Bench {
     /// Training on random looks against the unit's own look, read zero-shot by cameras no run
     /// trained on (the independent image model).
     Looks(bench_looks::Args),
+    /// ICP's nearest-neighbour index against kiddo's k-d tree on the pinch example's clouds:
+    /// build and query time, and whether every answer is the same.
+    IcpIndex(bench_icp_index::Args),
     /// Data loading against the train step: decoded samples/s beside train-step samples/s.
     Loader(bench_loader::Args),
     /// A camera drifting for twenty minutes: untouched frames gated, false contacts, contact
@@ -83,6 +87,7 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Foreign(args) } => bench_foreign::run(args),
         Command::Bench { what: Bench::Finetune(args) } => bench_finetune::run(args),
         Command::Bench { what: Bench::Drift(args) } => bench_drift::run(args),
+        Command::Bench { what: Bench::IcpIndex(args) } => bench_icp_index::run(args),
         Command::Bench { what: Bench::Loader(args) } => bench_loader::run(args),
         Command::Bench { what: Bench::Looks(args) } => bench_looks::run(args),
         Command::Bench { what: Bench::Table(args) } => bench_table::run(args),

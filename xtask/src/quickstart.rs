@@ -115,7 +115,7 @@ pub fn run(args: Args) -> Result<()> {
     let renderer = Renderer::for_crop(&SensorUnit::from_seed(args.unit, 25.0));
     let untouched = untouched_frames(&mut predictor, &renderer, if args.smoke { 2 } else { 20 })?;
 
-    let mut test_stats: Vec<SplitStats> = stats.get("test").cloned().into_iter().collect();
+    let mut test_stats: Vec<SplitStats> = stats.get(&Split::Test).cloned().into_iter().collect();
     for seed in 1..args.seeds {
         let dir = out.join("seeds").join(seed.to_string());
         println!("[seed {seed}] training, bundle and test evaluation: {}", dir.display());
@@ -124,7 +124,7 @@ pub fn run(args: Args) -> Result<()> {
         train::export::export_net(&fitted.net, &fitted.state, &bundle, &[&dir.join("run")])?;
         let predictor = Predictor::load(&bundle, &device)?;
         let stats = infer::eval::evaluate_dataset(&predictor, &data, &[Split::Test], &dir.join("eval"))?;
-        test_stats.extend(stats.get("test").cloned());
+        test_stats.extend(stats.get(&Split::Test).cloned());
     }
 
     check_outputs(out)?;
@@ -310,12 +310,12 @@ impl NetworkOnQuiet {
 /// The outputs a user is pointed to exist and parse.
 fn check_outputs(out: &Path) -> Result<()> {
     let stats_path = out.join("eval/stats.json");
-    let stats: std::collections::BTreeMap<String, infer::eval::SplitStats> = serde_json::from_str(
+    let stats: std::collections::BTreeMap<Split, infer::eval::SplitStats> = serde_json::from_str(
         &std::fs::read_to_string(&stats_path).with_context(|| format!("{}: missing", stats_path.display()))?,
     )
     .with_context(|| format!("{}: not the evaluation's figures", stats_path.display()))?;
-    for split in ["train", "test"] {
-        let figures = stats.get(split).with_context(|| format!("{}: no {split} split", stats_path.display()))?;
+    for split in [Split::Train, Split::Test] {
+        let figures = stats.get(&split).with_context(|| format!("{}: no {split} split", stats_path.display()))?;
         for (key, summary) in figures.summaries() {
             ensure!(!summary.mean.is_nan(), "{}: no {split}.{key}.mean", stats_path.display());
         }
@@ -347,7 +347,7 @@ fn check_outputs(out: &Path) -> Result<()> {
 }
 
 fn print_summary(
-    stats: &std::collections::BTreeMap<String, SplitStats>,
+    stats: &std::collections::BTreeMap<Split, SplitStats>,
     scene_lines: &[String],
     frame_ms: f64,
     state: &train::checkpoint::RunState,
@@ -380,7 +380,7 @@ fn print_summary(
             s.l2_mm.mean
         );
     }
-    if let Some(test) = stats.get("test") {
+    if let Some(test) = stats.get(&Split::Test) {
         let verdict = |ok: bool| if ok { "met" } else { "NOT met" };
         println!(
             "goals: test contact L1 {:.4} mm at most {CONTACT_GOAL_MM} mm: {}; test L1 {:.4} mm below the paper's {PAPER_TEST_L1_MM} mm: {}",

@@ -2,11 +2,6 @@
 
 use std::time::Instant;
 
-/// The median (`formats::stats`, the project's one quantile rule).
-pub fn median(v: Vec<f64>) -> f64 {
-    formats::stats::median(v)
-}
-
 /// Median seconds of `f` over `reps` runs after one warm-up, and the last result.
 pub fn time<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     let mut out = f();
@@ -16,7 +11,7 @@ pub fn time<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
         out = f();
         times.push(t.elapsed().as_secs_f64());
     }
-    (median(times), out)
+    (formats::stats::median(times), out)
 }
 
 /// Median milliseconds of `f` over `reps` runs after one warm-up.

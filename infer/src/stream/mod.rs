@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 use image::RgbImage;
 use sensor::{CONTACT_THRESHOLD_MM, DepthMap};
 
-use crate::{PointCloud, Predictor, ReferenceKeeper, RefreshConfig};
+use crate::{InferError, PointCloud, Predictor, ReferenceKeeper, RefreshConfig};
 use mailbox::Mailbox;
 pub use report::{FrameRecord, Percentiles, StreamReport};
 #[cfg(feature = "ros2")]
@@ -118,13 +118,8 @@ pub fn run(
         let mut last_progress = Instant::now();
         let result = (|| -> Result<(), StreamError> {
             while let Some(frame) = mailbox.take() {
-                let (depth, network_ran) = match live.predict_gated(&frame.image) {
-                    Ok(v) => v,
-                    Err(e) => {
-                        mailbox.failed(format!("{}: {e}", frame.name));
-                        continue;
-                    }
-                };
+                // The capture made it the crop: its size is not checked again.
+                let (depth, network_ran) = live.predict_crop(&frame.image);
                 let contact_pixels =
                     Predictor::contact_mask(&depth, CONTACT_THRESHOLD_MM).iter().filter(|&&c| c).count();
                 let cloud = if contact_pixels > 0 {
@@ -201,20 +196,16 @@ fn capture(source: &mut dyn Source, predictor: &Predictor, mailbox: &Mailbox, st
             Delivered::Frame { name, arrived, raw } => {
                 let path = std::path::Path::new(&name);
                 let image = match raw {
-                    RawFrame::Encoded(bytes) => sensor::frame::decode(path, &bytes),
+                    RawFrame::Encoded(bytes) => sensor::frame::decode(path, &bytes).map_err(InferError::from),
                     RawFrame::Rgb(image) => Ok(image),
                 }
-                .and_then(|image| sensor::frame::crop(path, image, &predictor.file.sensor))
-                .and_then(|crop| {
-                    // A source's channel order does not change: the first frame tells.
-                    if let (false, Some(reference)) = (channels_checked, &predictor.reference) {
-                        sensor::frame::check_channel_order(path, &crop, reference, &predictor.mask)?;
-                        channels_checked = true;
-                    }
-                    Ok(crop)
-                });
+                // A source's channel order does not change: the first frame that passes tells.
+                .and_then(|image| predictor.accept_frame(path, image, !channels_checked));
                 match image {
-                    Ok(image) => mailbox.put(Arrived { name, arrived, image }),
+                    Ok(image) => {
+                        channels_checked = true;
+                        mailbox.put(Arrived { name, arrived, image })
+                    }
                     Err(e) => mailbox.unreadable(e.to_string()),
                 }
             }
