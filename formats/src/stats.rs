@@ -77,6 +77,14 @@ impl Summary {
     }
 }
 
+impl Summary {
+    /// A timing as the benchmarks print it: the median and the interquartile range, to 0.01
+    /// (`1.23 [1.20, 1.31]`), so that small networks' times and their run-to-run spread show.
+    pub fn median_and_quartiles(&self) -> String {
+        format!("{:.2} [{:.2}, {:.2}]", self.median, self.q1, self.q3)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -91,5 +99,11 @@ mod tests {
         assert_eq!(median([3.0, 1.0, 2.0]), 2.0);
         assert_eq!(median([7.5]), 7.5);
         assert!(median([]).is_nan());
+    }
+
+    #[test]
+    fn a_timing_prints_its_median_and_quartiles_to_a_hundredth() {
+        let t = Summary::of([1.0, 1.234, 1.3, 2.0, 9.0]);
+        assert_eq!(t.median_and_quartiles(), "1.30 [1.23, 2.00]");
     }
 }

@@ -2,24 +2,25 @@
 
 use std::time::Instant;
 
+use formats::stats::Summary;
 use image::RgbImage;
 use sensor::CONTACT_THRESHOLD_MM;
 
 use crate::{InferError, Predictor};
 
-/// Median times (ms) of one frame's stages.
+/// Times (ms: median, quartiles, range) of one frame's stages.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FrameTimes {
     /// Input tensor to output tensor, synchronised (the network alone).
-    pub network_ms: f64,
+    pub network_ms: Summary,
     /// PNG bytes to depth map and contact point cloud, the network always running.
-    pub end_to_end_ms: f64,
+    pub end_to_end_ms: Summary,
     /// The same for a frame without contact, which the gate answers without the network.
-    pub gated_no_contact_ms: f64,
+    pub gated_no_contact_ms: Summary,
     pub repeats: usize,
 }
 
-fn median_ms(repeats: usize, mut f: impl FnMut() -> Result<(), InferError>) -> Result<f64, InferError> {
+fn timed_ms(repeats: usize, mut f: impl FnMut() -> Result<(), InferError>) -> Result<Summary, InferError> {
     f()?; // warm-up: first-use allocations, kernel compilation on GPUs
     let mut times = Vec::with_capacity(repeats);
     for _ in 0..repeats {
@@ -27,7 +28,7 @@ fn median_ms(repeats: usize, mut f: impl FnMut() -> Result<(), InferError>) -> R
         f()?;
         times.push(start.elapsed().as_secs_f64() * 1e3);
     }
-    Ok(formats::stats::median(times))
+    Ok(Summary::of(times))
 }
 
 /// Times `frame_png` (an encoded crop) through `predictor`; `no_contact_png` is a frame the
@@ -45,19 +46,19 @@ pub fn time_frames(
     };
     let frame = decode(frame_png)?;
     let input = predictor.input(std::slice::from_ref(&frame))?;
-    let network_ms = median_ms(repeats, || {
+    let network_ms = timed_ms(repeats, || {
         // Reading the output back waits for the device: the time includes the whole forward.
         let out = predictor.forward(input.clone());
         let _ = out.into_data();
         Ok(())
     })?;
-    let end_to_end_ms = median_ms(repeats, || {
+    let end_to_end_ms = timed_ms(repeats, || {
         let depth = predictor.predict_network(&[decode(frame_png)?])?.remove(0);
         let cloud = predictor.point_cloud(&depth, CONTACT_THRESHOLD_MM);
         std::hint::black_box(cloud);
         Ok(())
     })?;
-    let gated_no_contact_ms = median_ms(repeats, || {
+    let gated_no_contact_ms = timed_ms(repeats, || {
         let (depth, _) = predictor.predict_gated(&decode(no_contact_png)?)?;
         std::hint::black_box(predictor.point_cloud(&depth, CONTACT_THRESHOLD_MM));
         Ok(())

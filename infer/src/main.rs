@@ -69,8 +69,8 @@ enum Command {
     /// when the network falls behind, throughput and latency percentiles at the end (Ctrl-C
     /// ends a live stream and still writes them).
     Stream(StreamArgs),
-    /// Median milliseconds per frame (network alone, end to end, a frame without contact),
-    /// beside the bundle's recorded test error.
+    /// Milliseconds per frame, median and quartiles to 0.01 ms (network alone, end to end, a
+    /// frame without contact), beside the bundle's recorded test error.
     Bench {
         /// The bundle folder (`train export`).
         #[arg(long)]
@@ -110,11 +110,11 @@ fn bench(bundle: PathBuf, image: Option<PathBuf>, device: String, repeats: usize
         f.input_height_px,
         f.input_width_px
     );
-    println!("median of {} frames:", t.repeats);
-    println!("  network only                      {:9.2} ms", t.network_ms);
-    println!("  end to end (decode, depth, cloud) {:9.2} ms", t.end_to_end_ms);
+    println!("ms per frame over {} frames, median [quartiles]:", t.repeats);
+    println!("  network only                      {}", t.network_ms.median_and_quartiles());
+    println!("  end to end (decode, depth, cloud) {}", t.end_to_end_ms.median_and_quartiles());
     match reference {
-        Some(_) => println!("  frame without contact (gated)     {:9.2} ms", t.gated_no_contact_ms),
+        Some(_) => println!("  frame without contact (gated)     {}", t.gated_no_contact_ms.median_and_quartiles()),
         None => println!("  frame without contact             no reference image in the bundle: no gate"),
     }
     println!("test L1 recorded by training (mean per image, useful pixels, network resolution): {test}");

@@ -172,14 +172,19 @@ fn samples_under_their_own_looks_are_read_against_their_own_untouched_frames() {
     assert!((got - mean_l1).abs() < 1e-9, "eval's L1 {got} against {mean_l1} read sample by sample");
 }
 
+/// A test bundle in `tmp/bundle` and a pressed frame of its unit in `tmp/frame.png`.
+fn bundle_and_pressed_frame(tmp: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = tmp.join("bundle");
+    let (_, frame) = pressed(&bundle(&dir));
+    let image = tmp.join("frame.png");
+    frame.save(&image).unwrap();
+    (dir, image)
+}
+
 #[test]
 fn the_command_writes_depth_colour_and_a_point_cloud() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("bundle");
-    let renderer = bundle(&dir);
-    let (_, frame) = pressed(&renderer);
-    let image = tmp.path().join("frame.png");
-    frame.save(&image).unwrap();
+    let (dir, image) = bundle_and_pressed_frame(tmp.path());
     let out = |name: &str| tmp.path().join(name).to_str().unwrap().to_string();
     let r = Command::new(env!("CARGO_BIN_EXE_infer"))
         .args(["predict", "--bundle", dir.to_str().unwrap(), "--image", image.to_str().unwrap()])
@@ -198,6 +203,36 @@ fn the_command_writes_depth_colour_and_a_point_cloud() {
         .output()
         .unwrap();
     assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("bundle.json"));
+}
+
+/// `infer bench` times each stage and gives its median and quartiles to a hundredth of a
+/// millisecond, the quartiles around the median.
+#[test]
+fn bench_reports_each_stage_with_its_quartiles() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (dir, image) = bundle_and_pressed_frame(tmp.path());
+    let r = Command::new(env!("CARGO_BIN_EXE_infer"))
+        .args(["bench", "--bundle", dir.to_str().unwrap(), "--image", image.to_str().unwrap(), "--repeats", "5"])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let out = String::from_utf8_lossy(&r.stdout);
+    for stage in ["network only", "end to end", "frame without contact"] {
+        let line = out.lines().find(|l| l.trim_start().starts_with(stage)).unwrap_or_else(|| panic!("{stage}: {out}"));
+        let numbers: Vec<f64> = line
+            .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .filter(|w| w.contains('.'))
+            .map(|w| w.parse().unwrap())
+            .collect();
+        let [median, q1, q3] = numbers[..] else { panic!("{stage}: median [q1, q3] expected: {line}") };
+        assert!(q1 <= median && median <= q3 && q1 > 0.0, "{line}");
+        assert!(
+            line.split_whitespace()
+                .all(|w| !w.contains('.')
+                    || w.trim_matches(['[', ']', ',']).split('.').nth(1).is_some_and(|d| d.len() == 2)),
+            "{line}"
+        );
+    }
 }
 
 /// The camera's full frame (PNG or JPEG) is cut around the bundle's optical centre and reads as

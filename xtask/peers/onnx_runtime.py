@@ -2,7 +2,8 @@
 `model::onnx::export` (the same folded network Burn times), with the same thread count. Not part
 of CI. Needs: pip install onnxruntime numpy.
 
-Prints one line per batch size: batch=B forward_ms=X version=V (median of --reps after a warm-up).
+Prints one line per batch size: batch=B forward_ms=X forward_q1_ms=Q1 forward_q3_ms=Q3 version=V
+(median and quartiles of --reps after a warm-up, numpy's quantile rule, as the Rust side's).
 """
 import argparse, statistics, time
 import numpy as np
@@ -25,4 +26,6 @@ for b in (int(x) for x in a.batches.split(",")):
     times = []
     for _ in range(a.reps):
         t = time.perf_counter(); session.run(None, {name: x}); times.append((time.perf_counter() - t) * 1e3)
-    print(f"batch={b} forward_ms={statistics.median(times):.1f} version={ort.__version__}", flush=True)
+    q1, med, q3 = statistics.quantiles(times, n=4, method="inclusive") if len(times) > 1 else times * 3
+    print(f"batch={b} forward_ms={med:.3f} forward_q1_ms={q1:.3f} forward_q3_ms={q3:.3f} version={ort.__version__}",
+          flush=True)

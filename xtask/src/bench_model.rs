@@ -1,4 +1,5 @@
-//! Model benchmark: median forward and train-step milliseconds, batch 1 and 4, beside PyTorch
+//! Model benchmark: forward and train-step milliseconds (median and quartiles, to 0.01 ms),
+//! batch 1 and 4, of a recipe's network (the paper's, or the quickstart's), beside PyTorch
 //! running the same architecture in the same run: on the CPU (flex) with the same thread count,
 //! or on a GPU (`--devices cuda`, or several for the data-parallel train step). On the CPU,
 //! ONNX Runtime runs the same network exported by `model::onnx` (forward only).
@@ -8,6 +9,7 @@ use std::process::Command;
 use anyhow::{Context, Result, bail};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Distribution, Tensor};
+use formats::stats::Summary;
 use model::{DenseDepthConfig, DepthLossConfig};
 use train::data::{DepthBatcher, DepthItem};
 use train::parallel::DataParallel;
@@ -16,23 +18,39 @@ use crate::timing::time_ms;
 
 #[derive(clap::Args)]
 pub struct Args {
+    /// The network and input size of a training recipe: `paper` (DenseNet-161 at 480x640, RGB,
+    /// half-resolution output) or `quickstart` (compact at 128x128, RGB and its difference to
+    /// the reference, full-resolution output); the flags below change one part of it.
+    #[arg(long, value_enum, default_value_t = train::Recipe::Paper)]
+    recipe: train::Recipe,
     /// Encoder preset (compact, small, medium, tiny, densenet121, densenet161, densenet169, densenet201).
-    #[arg(long, default_value = "densenet161")]
-    preset: model::Preset,
-    #[arg(long, default_value_t = 480)]
-    height: usize,
-    #[arg(long, default_value_t = 640)]
-    width: usize,
+    #[arg(long)]
+    preset: Option<model::Preset>,
+    #[arg(long)]
+    height: Option<usize>,
+    #[arg(long)]
+    width: Option<usize>,
+    /// What the network reads: rgb, or rgb-difference (6 channels).
+    #[arg(long)]
+    input: Option<model::InputChannels>,
+    /// Output at the input's resolution (a fifth up block), or at half of it.
+    #[arg(long, conflicts_with = "half_resolution")]
+    full_resolution: bool,
+    #[arg(long)]
+    half_resolution: bool,
     /// Batch sizes, comma separated.
     #[arg(long, default_value = "1,4", value_delimiter = ',')]
     batches: Vec<usize>,
-    /// Timed repetitions per measurement (after one warm-up); the median is reported.
+    /// Timed repetitions per measurement (after one warm-up): the median and quartiles are reported.
     #[arg(long, default_value_t = 3)]
     reps: usize,
-    /// Python interpreter with torch and torchvision (and onnxruntime, on the CPU) for the
-    /// peers; "none" skips them.
+    /// Python interpreter for the peers; "none" skips them.
     #[arg(long, default_value = "python3")]
     python: String,
+    /// The peers to run: pytorch (needs torch and torchvision), onnxruntime (needs onnxruntime
+    /// and numpy; on the CPU only).
+    #[arg(long, value_enum, default_value = "pytorch,onnxruntime", value_delimiter = ',')]
+    peers: Vec<Peer>,
     /// Measure the forward pass only (for profiling).
     #[arg(long)]
     forward_only: bool,
@@ -43,19 +61,49 @@ pub struct Args {
     devices: String,
 }
 
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum Peer {
+    Pytorch,
+    Onnxruntime,
+}
+
+impl Args {
+    /// The network measured: the recipe's, changed by the flags.
+    fn network(&self) -> (DenseDepthConfig, [usize; 2]) {
+        let n = self.recipe.network();
+        let full = match (self.full_resolution, self.half_resolution) {
+            (true, _) => true,
+            (_, true) => false,
+            _ => n.full_resolution,
+        };
+        let config = DenseDepthConfig::new(self.preset.unwrap_or(n.preset).config())
+            .with_input(self.input.unwrap_or(n.channels))
+            .with_full_resolution(full);
+        (config, [self.height.unwrap_or(n.input_hw[0]), self.width.unwrap_or(n.input_hw[1])])
+    }
+}
+
+/// One measurement's times (ms); `None` where it was not taken.
+type Times = Option<Summary>;
+
 pub fn run(args: Args) -> Result<()> {
-    let encoder = args.preset.config();
-    DenseDepthConfig::check_input_hw([args.height, args.width])?;
-    let config = DenseDepthConfig::new(encoder.clone());
+    let (config, [h, w]) = args.network();
+    let encoder = config.encoder.clone();
+    DenseDepthConfig::check_input_hw([h, w])?;
+    let channels = config.input.count();
     let threads = rayon::current_num_threads();
-    let (h, w) = (args.height, args.width);
     let devices = model::backend::devices(&args.devices)?;
     let device = devices[0].clone();
     let on_cpu = devices == [model::backend::default_device()];
     let burn_name = if on_cpu { "Burn flex".to_string() } else { format!("Burn {}", args.devices) };
     println!(
-        "DenseDepth-{} at {h}x{w} on {}, {threads} threads, median of {} runs",
-        args.preset, args.devices, args.reps
+        "DenseDepth-{} at {h}x{w} reading {} ({channels} channels), output at {} resolution, on {}, {threads} threads, \
+         ms over {} runs: median [quartiles]",
+        encoder.preset().map_or("custom", model::Preset::name),
+        config.input.name(),
+        if config.full_resolution { "full" } else { "half" },
+        args.devices,
+        args.reps
     );
     // GPU work is queued: a timed run ends when every device has finished it.
     let sync = || {
@@ -67,7 +115,7 @@ pub fn run(args: Args) -> Result<()> {
     for &batch in &args.batches {
         // Inference as `infer` runs it: eval mode, no autodiff, BatchNorms folded.
         let net = config.init(&device).folded();
-        let images = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &device);
+        let images = Tensor::<4>::random([batch, channels, h, w], Distribution::Uniform(0.0, 1.0), &device);
         let forward = time_ms(args.reps, || {
             let out = net.forward(images.clone());
             let _ = out.into_data();
@@ -77,12 +125,14 @@ pub fn run(args: Args) -> Result<()> {
             let _ = net.encoder.forward(images.clone()).norm5.into_data();
         });
         println!(
-            "batch {batch}: forward {forward:.0} ms, of which encoder {encoder_ms:.0} ms, decoder {:.0} ms",
-            forward - encoder_ms
+            "batch {batch}: forward {}, of which encoder {} (medians: decoder {:.2})",
+            forward.median_and_quartiles(),
+            encoder_ms.median_and_quartiles(),
+            forward.median - encoder_ms.median
         );
 
         if args.forward_only {
-            rows.push((batch, forward, f64::NAN));
+            rows.push((batch, forward, None));
             continue;
         }
         let train_device = device.clone().autodiff();
@@ -91,7 +141,7 @@ pub fn run(args: Args) -> Result<()> {
         let loss_config = DepthLossConfig::new();
         let [oh, ow] = config.output_hw([h, w]);
         let step = if devices.len() == 1 {
-            let images = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &train_device);
+            let images = Tensor::<4>::random([batch, channels, h, w], Distribution::Uniform(0.0, 1.0), &train_device);
             let target = Tensor::<4>::random([batch, 1, oh, ow], Distribution::Uniform(10.0, 1000.0), &train_device);
             time_ms(args.reps, || {
                 let loss = loss_config.forward(net.forward(images.clone()), target.clone()).total;
@@ -108,7 +158,7 @@ pub fn run(args: Args) -> Result<()> {
             let mask = std::sync::Arc::new(vec![1.0; oh * ow]);
             let items: Vec<DepthItem> = (0..batch)
                 .map(|_| DepthItem {
-                    image: (0..3 * h * w).map(|_| rng.unit() as f32).collect(),
+                    image: (0..channels * h * w).map(|_| rng.unit() as f32).collect(),
                     depth: (0..oh * ow).map(|_| 10.0 + 990.0 * rng.unit() as f32).collect(),
                     mask: mask.clone(),
                 })
@@ -119,79 +169,96 @@ pub fn run(args: Args) -> Result<()> {
                 sync();
             })
         };
-        println!("batch {batch}: train step {step:.0} ms, {:.1} images/s", batch as f64 * 1e3 / step);
-        rows.push((batch, forward, step));
+        println!(
+            "batch {batch}: train step {}, {:.1} images/s",
+            step.median_and_quartiles(),
+            batch as f64 * 1e3 / step.median
+        );
+        rows.push((batch, forward, Some(step)));
     }
 
-    let mut peer = Vec::new();
+    let mut peer: Vec<(usize, Summary, Times)> = Vec::new();
     let mut peer_device = String::from("cpu");
-    let mut ort = Vec::new();
-    if args.python != "none" {
-        let [g, i, bn] = [encoder.growth_rate, encoder.num_init_features, encoder.bn_size];
+    let mut ort: Vec<(usize, Summary)> = Vec::new();
+    let run_peers = |p: Peer| args.python != "none" && args.peers.contains(&p);
+    let batches = args.batches.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(",");
+    let [hs, ws, reps, threads, channels_s] = [h, w, args.reps, threads, channels].map(|v| v.to_string());
+    let common = ["--height", &hs, "--width", &ws, "--batches", &batches, "--reps", &reps, "--threads", &threads];
+    let common = [&common[..], &["--channels", &channels_s]].concat();
+    if run_peers(Peer::Pytorch) {
+        let [g, i, bn] = [encoder.growth_rate, encoder.num_init_features, encoder.bn_size].map(|v| v.to_string());
         let blocks = encoder.block_config.map(|x| x.to_string()).join(",");
-        let batches = args.batches.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(",");
-        let [hs, ws, reps, threads, g, i, bn] = [h, w, args.reps, threads, g, i, bn].map(|v| v.to_string());
-        let common = ["--height", &hs, "--width", &ws, "--batches", &batches, "--reps", &reps, "--threads", &threads];
         let device_name = if on_cpu { "cpu" } else { "cuda" };
         let mut torch_args = vec!["--growth", &g, "--blocks", &blocks, "--init", &i, "--bn-size", &bn];
         torch_args.extend(["--device", device_name]);
-        torch_args.extend(common);
-        let lines = run_peer(&args.python, "densedepth_torch.py", &torch_args)?;
-        for line in &lines {
-            if let (Some(batch), Some(f), Some(t)) =
-                (field(line, "batch="), field(line, "forward_ms="), field(line, "train_ms="))
-            {
-                peer.push((batch as usize, f, t));
+        torch_args.extend(&common);
+        if config.full_resolution {
+            torch_args.push("--full-resolution");
+        }
+        for line in &run_peer(&args.python, "densedepth_torch.py", &torch_args)? {
+            if let (Some(batch), Some(f)) = (field(line, "batch="), times(line, "forward")) {
+                peer.push((batch as usize, f, times(line, "train")));
             }
             if let Some(d) = line.split_whitespace().find_map(|w| w.strip_prefix("device=")) {
                 peer_device = d.to_string();
             }
         }
-        if on_cpu {
-            // ONNX Runtime on the same exported network (one model for every batch size: the
-            // batch is free in the graph), what a user would run instead of us on a CPU.
-            let dir = tempfile::tempdir()?;
-            let onnx = dir.path().join("densedepth.onnx");
-            let net = config.init(&device);
-            let file = model_bundle_file(&config, [h, w]);
-            std::fs::write(&onnx, model::onnx::export(&net, &file)?)?;
-            let onnx = onnx.display().to_string();
-            let mut ort_args = vec!["--model", onnx.as_str()];
-            ort_args.extend(common);
-            for line in run_peer(&args.python, "onnx_runtime.py", &ort_args)? {
-                if let (Some(batch), Some(f)) = (field(&line, "batch="), field(&line, "forward_ms=")) {
-                    ort.push((batch as usize, f));
-                }
+    }
+    if on_cpu && run_peers(Peer::Onnxruntime) {
+        // ONNX Runtime on the same exported network (one model for every batch size: the
+        // batch is free in the graph), what a user would run instead of us on a CPU.
+        let dir = tempfile::tempdir()?;
+        let onnx = dir.path().join("densedepth.onnx");
+        let net = config.init(&device);
+        let file = model_bundle_file(&config, [h, w]);
+        std::fs::write(&onnx, model::onnx::export(&net, &file)?)?;
+        let onnx = onnx.display().to_string();
+        let mut ort_args = vec!["--model", onnx.as_str()];
+        ort_args.extend(&common);
+        for line in run_peer(&args.python, "onnx_runtime.py", &ort_args)? {
+            if let (Some(batch), Some(f)) = (field(&line, "batch="), times(&line, "forward")) {
+                ort.push((batch as usize, f));
             }
         }
     }
 
     println!();
     let peer_name = if peer_device == "cpu" { "PyTorch".to_string() } else { format!("PyTorch {peer_device}") };
-    let ms = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0}"));
-    let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}", a / b));
+    let ms = |v: Option<&Summary>| v.map_or("-".to_string(), Summary::median_and_quartiles);
+    // Ratios of medians.
+    let ratio = |a: Option<&Summary>, b: Option<&Summary>| match (a, b) {
+        (Some(a), Some(b)) => format!("{:.2}", a.median / b.median),
+        _ => "-".to_string(),
+    };
     println!(
         "| batch | {burn_name} forward ms | {peer_name} forward ms | ratio | ONNX Runtime forward ms | ratio | {burn_name} train step ms | {peer_name} train step ms | ratio |"
     );
     println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-    for (batch, f, t) in rows {
-        let p = peer.iter().find(|p| p.0 == batch);
-        let o = ort.iter().find(|o| o.0 == batch).map(|o| o.1);
-        let (pf, pt) = (p.map(|p| p.1), p.map(|p| p.2));
-        // `--forward-only` leaves the train step unmeasured (NaN).
-        let (t, pt) = if t.is_nan() { (None, None) } else { (Some(t), pt) };
+    for (batch, f, t) in &rows {
+        let p = peer.iter().find(|p| p.0 == *batch);
+        let o = ort.iter().find(|o| o.0 == *batch).map(|o| &o.1);
+        let (pf, pt) = (p.map(|p| &p.1), p.and_then(|p| p.2.as_ref()));
+        let f = Some(f);
         println!(
-            "| {batch} | {f:.0} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {batch} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            ms(f),
             ms(pf),
             ratio(f, pf),
             ms(o),
             ratio(f, o),
-            ms(t),
+            ms(t.as_ref()),
             ms(pt),
-            t.map_or("-".into(), |t| ratio(t, pt))
+            ratio(t.as_ref(), pt)
         );
     }
     Ok(())
+}
+
+/// A peer's `NAME_ms=MEDIAN NAME_q1_ms=Q1 NAME_q3_ms=Q3` as a summary (median and quartiles).
+fn times(line: &str, name: &str) -> Option<Summary> {
+    let median = field(line, &format!("{name}_ms="))?;
+    let q = |k: &str| field(line, &format!("{name}_{k}_ms=")).unwrap_or(f64::NAN);
+    Some(Summary { median, q1: q("q1"), q3: q("q3"), ..Summary::of([median]) })
 }
 
 /// `key=value` of a peer's output line, as a number.
@@ -213,4 +280,45 @@ fn run_peer(python: &str, script: &str, args: &[&str]) -> Result<Vec<String>> {
 /// The description the ONNX export's metadata carries, for a benchmark's untrained network.
 fn model_bundle_file(config: &DenseDepthConfig, [h, w]: [usize; 2]) -> model::bundle::BundleFile {
     model::bundle::BundleFile::new(config.clone(), [h, w], sensor::Sensor::default(), model::DepthScale::paper(9.4))
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+    use model::InputChannels;
+
+    use super::*;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    fn network(argv: &[&str]) -> (DenseDepthConfig, [usize; 2]) {
+        Cli::try_parse_from([&["bench"], argv].concat()).unwrap().args.network()
+    }
+
+    #[test]
+    fn a_recipe_names_the_network_and_flags_change_one_part_of_it() {
+        assert_eq!(network(&[]), (train::Recipe::Paper.model_config().unwrap(), [480, 640]));
+        assert_eq!(
+            network(&["--recipe", "quickstart"]),
+            (train::Recipe::Quickstart.model_config().unwrap(), [128, 128])
+        );
+        let (c, hw) = network(&["--recipe", "quickstart", "--half-resolution", "--input", "rgb", "--height", "96"]);
+        assert_eq!((c.full_resolution, c.input, hw), (false, InputChannels::Rgb, [96, 128]));
+        assert_eq!(c.encoder, model::Preset::Compact.config());
+        assert!(network(&["--preset", "tiny", "--full-resolution"]).0.full_resolution);
+        assert!(Cli::try_parse_from(["bench", "--full-resolution", "--half-resolution"]).is_err());
+    }
+
+    #[test]
+    fn a_peers_line_gives_its_median_and_quartiles() {
+        let t = times("batch=4 forward_ms=8.125 forward_q1_ms=8.1 forward_q3_ms=8.2 version=1.32", "forward").unwrap();
+        assert_eq!((t.median, t.q1, t.q3), (8.125, 8.1, 8.2));
+        assert_eq!(t.median_and_quartiles(), "8.12 [8.10, 8.20]");
+        assert!(times("batch=4 train_ms=1.5", "forward").is_none());
+        assert!(times("batch=1 forward_ms=3.5", "forward").unwrap().q1.is_nan(), "a peer without quartiles");
+    }
 }

@@ -248,7 +248,7 @@ fn time_one_frame(predictor: &Predictor, data: &Path, manifest: &Manifest) -> Re
     let sample = manifest.samples.iter().find(|s| s.split == Split::Test).context("no test samples")?;
     let path = data.join(sample.image.as_ref().context("the dataset has no images")?);
     let png = std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-    Ok(infer::bench::time_frames(predictor, &png, &png, 5)?.network_ms)
+    Ok(infer::bench::time_frames(predictor, &png, &png, 5)?.network_ms.median)
 }
 
 /// Frames without contact (the unit's reference with fresh noise): how often the gate skips

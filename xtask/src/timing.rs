@@ -14,9 +14,15 @@ pub fn time<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     (formats::stats::median(times), out)
 }
 
-/// Median milliseconds of `f` over `reps` runs after one warm-up.
-pub fn time_ms(reps: usize, f: impl FnMut()) -> f64 {
-    time(reps, f).0 * 1e3
+/// Milliseconds of `f` over `reps` runs after one warm-up: median, quartiles, range.
+pub fn time_ms(reps: usize, mut f: impl FnMut()) -> formats::stats::Summary {
+    f();
+    let times = (0..reps).map(|_| {
+        let t = Instant::now();
+        f();
+        t.elapsed().as_secs_f64() * 1e3
+    });
+    formats::stats::Summary::of(times.collect::<Vec<_>>())
 }
 
 /// Seconds of a single run of `f` (no warm-up), and its result.
