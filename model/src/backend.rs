@@ -35,6 +35,30 @@ fn single_threaded() -> bool {
     std::fs::read_dir("/proc/self/task").map(|tasks| tasks.count() == 1).unwrap_or(false)
 }
 
+/// Runs `f` on one of rayon's workers (at once if this thread is one). The flex kernels scatter
+/// each layer's work over rayon's pool; called from a thread outside it, every layer's scatter
+/// is injected into the pool and waited for through a lock, which at the quickstart's 128x128
+/// costs a good part of the layers' time at the quickstart's 128x128: the compact network's
+/// inference forward, alternated in one process, 1.14-1.32x faster inside the pool (BENCHMARKS.md,
+/// `cargo xtask bench model --recipe quickstart --pool-hop-ab`), with the same output to the bit.
+/// `DenseDepth::forward` runs inference (plain flex, no autodiff) through it.
+pub fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    if rayon::current_thread_index().is_some() || !POOL_HOP.load(std::sync::atomic::Ordering::Relaxed) {
+        f()
+    } else {
+        rayon::scope(|_| f())
+    }
+}
+
+static POOL_HOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(true);
+
+/// Turns [`in_pool`]'s hop off (`false`) or back on, process-wide: for the benchmark that
+/// measures both sides alternately in one run (`cargo xtask bench model --pool-hop-ab`).
+/// Inference results are the same either way (that benchmark checks it).
+pub fn set_pool_hop(on: bool) {
+    POOL_HOP.store(on, std::sync::atomic::Ordering::Relaxed);
+}
+
 /// The default wgpu adapter (a discrete GPU when there is one; Mesa's lavapipe on a CPU-only
 /// machine with `mesa-vulkan-drivers`).
 #[cfg(feature = "wgpu")]

@@ -51,6 +51,10 @@ pub struct Args {
     /// and numpy; on the CPU only).
     #[arg(long, value_enum, default_value = "pytorch,onnxruntime", value_delimiter = ',')]
     peers: Vec<Peer>,
+    /// Also time the inference forward pass and a training step's forward and backward with
+    /// and without `model::backend::in_pool`'s hop into rayon's pool, alternately in this run.
+    #[arg(long)]
+    pool_hop_ab: bool,
     /// Measure the forward pass only (for profiling).
     #[arg(long)]
     forward_only: bool,
@@ -140,6 +144,9 @@ pub fn run(args: Args) -> Result<()> {
         let mut optim = AdamConfig::new().init();
         let loss_config = DepthLossConfig::new();
         let [oh, ow] = config.output_hw([h, w]);
+        if args.pool_hop_ab && devices.len() == 1 {
+            pool_hop_ab(&config, &device, [batch, channels, h, w], args.reps);
+        }
         let step = if devices.len() == 1 {
             let images = Tensor::<4>::random([batch, channels, h, w], Distribution::Uniform(0.0, 1.0), &train_device);
             let target = Tensor::<4>::random([batch, 1, oh, ow], Distribution::Uniform(10.0, 1000.0), &train_device);
@@ -259,6 +266,59 @@ fn times(line: &str, name: &str) -> Option<Summary> {
     let median = field(line, &format!("{name}_ms="))?;
     let q = |k: &str| field(line, &format!("{name}_{k}_ms=")).unwrap_or(f64::NAN);
     Some(Summary { median, q1: q("q1"), q3: q("q3"), ..Summary::of([median]) })
+}
+
+/// The inference forward pass and a training step's forward and backward, from the main thread
+/// with and without `in_pool`'s hop into rayon's pool, alternated run by run (this VM moves
+/// whole runs by more than the difference); checks that inference gives the same output both
+/// ways. The training side is a candidate, not applied: `DenseDepth::forward` hops for inference
+/// alone.
+fn pool_hop_ab(config: &DenseDepthConfig, device: &burn::tensor::Device, shape: [usize; 4], reps: usize) {
+    let [batch, _, h, w] = shape;
+    let net = config.init(device).folded();
+    let images = Tensor::<4>::random(shape, Distribution::Uniform(0.0, 1.0), device);
+    let train_device = device.clone().autodiff();
+    let train_net = config.init(&train_device);
+    let train_images = Tensor::<4>::random(shape, Distribution::Uniform(0.0, 1.0), &train_device);
+    let [oh, ow] = config.output_hw([h, w]);
+    let target = Tensor::<4>::random([batch, 1, oh, ow], Distribution::Uniform(10.0, 1000.0), &train_device);
+    let loss_config = DepthLossConfig::new();
+    let forward = || net.forward(images.clone()).into_data();
+    let step = || {
+        model::backend::in_pool(|| {
+            let loss = loss_config.forward(train_net.forward(train_images.clone()), target.clone()).total;
+            GradientsParams::from_grads(loss.backward(), &train_net).len()
+        })
+    };
+    let mut times = [[Vec::new(), Vec::new()], [Vec::new(), Vec::new()]];
+    let mut outputs = [None, None];
+    for rep in 0..=reps {
+        for (k, hop) in [false, true].into_iter().enumerate() {
+            model::backend::set_pool_hop(hop);
+            let t = std::time::Instant::now();
+            let out = forward();
+            let forward_ms = t.elapsed().as_secs_f64() * 1e3;
+            let t = std::time::Instant::now();
+            std::hint::black_box(step());
+            let step_ms = t.elapsed().as_secs_f64() * 1e3;
+            // The first round warms up.
+            if rep > 0 {
+                times[k][0].push(forward_ms);
+                times[k][1].push(step_ms);
+            }
+            outputs[k] = Some(out);
+        }
+    }
+    model::backend::set_pool_hop(true);
+    assert_eq!(outputs[0], outputs[1], "the hop changes no output");
+    let m = |v: &Vec<f64>| Summary::of(v.clone()).median_and_quartiles();
+    println!(
+        "batch {batch}, pool hop off / on, alternated: forward {} / {}, train forward and backward {} / {}",
+        m(&times[0][0]),
+        m(&times[1][0]),
+        m(&times[0][1]),
+        m(&times[1][1])
+    );
 }
 
 /// `key=value` of a peer's output line, as a number.

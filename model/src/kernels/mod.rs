@@ -17,6 +17,11 @@ use burn::nn::BatchNorm;
 use burn::nn::conv::Conv2d;
 use burn::tensor::Tensor;
 
+/// Whether `device` runs this crate's inference kernels: plain flex, outside autodiff.
+pub(crate) fn plain_flex(device: &burn::tensor::Device) -> bool {
+    flex::flex_kind(device) == Some(false)
+}
+
 // The backward passes (and the helpers only they call) serve training alone: a build without
 // `autodiff`, such as the `infer` binary's, compiles them but never calls them.
 #[cfg_attr(not(feature = "autodiff"), allow(dead_code))]

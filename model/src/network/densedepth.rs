@@ -46,7 +46,12 @@ impl DenseDepth {
         if let Err(e) = self.check_input(images.dims()) {
             panic!("{e}");
         }
-        self.decoder.forward(self.encoder.forward(images.clone()), images, mode)
+        let plain_flex = crate::kernels::plain_flex(&images.device());
+        let run = || self.decoder.forward(self.encoder.forward(images.clone()), images, mode);
+        // Inference on the CPU from inside rayon's pool (`backend::in_pool`); training as it was:
+        // with its forward and backward inside the pool, a run and its killed-and-resumed twin
+        // ended with different weights, so some reduction there follows rayon's scheduling.
+        if plain_flex { crate::backend::in_pool(run) } else { run() }
     }
 
     /// Whether this network takes an input of shape `[N, C, H, W]`: its channel count, both
