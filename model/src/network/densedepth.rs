@@ -48,9 +48,10 @@ impl DenseDepth {
         }
         let plain_flex = crate::kernels::plain_flex(&images.device());
         let run = || self.decoder.forward(self.encoder.forward(images.clone()), images, mode);
-        // Inference on the CPU from inside rayon's pool (`backend::in_pool`); training as it was:
-        // with its forward and backward inside the pool, a run and its killed-and-resumed twin
-        // ended with different weights, so some reduction there follows rayon's scheduling.
+        // Inference on the CPU from inside rayon's pool (`backend::in_pool`). Training stays on
+        // its caller's thread: Burn keeps batch norm's running statistics per thread and averages
+        // them when read, so a training forward on whichever worker takes it makes them follow
+        // the schedule (a run and its killed-and-resumed twin then differ; BENCHMARKS.md).
         if plain_flex { crate::backend::in_pool(run) } else { run() }
     }
 
