@@ -75,9 +75,7 @@ impl Summary {
             max: v[n - 1],
         }
     }
-}
 
-impl Summary {
     /// A timing as the benchmarks print it: the median and the interquartile range, to 0.01
     /// (`1.23 [1.20, 1.31]`), so that small networks' times and their run-to-run spread show.
     pub fn median_and_quartiles(&self) -> String {

@@ -343,6 +343,14 @@ fn eval_writes_statistics_per_split_errors_and_a_violin_plot() {
         n += stats[split]["l1_mm"]["n"].as_u64().unwrap();
     }
     assert_eq!(n, 10);
+    // Read back as the quickstart reads it: keyed by split, typed.
+    let typed: std::collections::BTreeMap<formats::dataset::Split, infer::eval::SplitStats> =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
+    assert_eq!(
+        typed.keys().copied().collect::<Vec<_>>(),
+        [formats::dataset::Split::Train, formats::dataset::Split::Test]
+    );
+    assert_eq!(typed.values().map(|s| s.l1_mm.n).sum::<usize>(), 10);
     let csv = std::fs::read_to_string(out.join("errors.csv")).unwrap();
     assert_eq!(csv.lines().count(), 11);
     assert!(std::fs::read_to_string(out.join("violin.svg")).unwrap().contains("<polygon"));

@@ -37,9 +37,9 @@ fn single_threaded() -> bool {
 
 /// Runs `f` on one of rayon's workers (at once if this thread is one). The flex kernels scatter
 /// each layer's work over rayon's pool; called from a thread outside it, every layer's scatter
-/// is injected into the pool and waited for through a lock, which at the quickstart's 128x128
-/// costs a good part of the layers' time at the quickstart's 128x128: the compact network's
-/// inference forward, alternated in one process, 1.14-1.32x faster inside the pool (BENCHMARKS.md,
+/// is injected into the pool and waited for through a lock, which costs a good part of the
+/// layers' time at the quickstart's 128x128: the compact network's inference forward, alternated
+/// in one process, 1.14-1.34x faster inside the pool (BENCHMARKS.md,
 /// `cargo xtask bench model --recipe quickstart --pool-hop-ab`), with the same output to the bit.
 /// `DenseDepth::forward` runs inference (plain flex, no autodiff) through it.
 pub fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {

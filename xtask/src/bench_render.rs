@@ -7,9 +7,9 @@ use dataset::calibration::{CalibrationOptions, calibrate, compare};
 use dataset::generate::{build_scene, draw_sample};
 use dataset::{Kit, RayBundle, RayCaster, Renderer, SawToothShot, SensorUnit, Skipping};
 use formats::dataset::GeneratorParams;
+use formats::stats::median;
 
 use crate::timing::{once, time};
-use formats::stats::median;
 
 #[derive(clap::Args)]
 pub struct Args {
