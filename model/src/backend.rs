@@ -41,7 +41,9 @@ fn single_threaded() -> bool {
 /// layers' time at the quickstart's 128x128: the compact network's inference forward, alternated
 /// in one process, 1.14-1.34x faster inside the pool (BENCHMARKS.md,
 /// `cargo xtask bench model --recipe quickstart --pool-hop-ab`), with the same output to the bit.
-/// `DenseDepth::forward` runs inference (plain flex, no autodiff) through it.
+/// `DenseDepth::forward` runs inference (plain flex, no autodiff) through it; `train`'s fit runs
+/// its whole epoch loop through it, on one worker, so that batch norm's running statistics
+/// (Burn keeps them per thread) are all written from one thread, as they were from outside.
 pub fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     if rayon::current_thread_index().is_some() || !POOL_HOP.load(std::sync::atomic::Ordering::Relaxed) {
         f()

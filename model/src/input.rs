@@ -71,9 +71,16 @@ impl std::str::FromStr for InputChannels {
     }
 }
 
-/// A crop's R, G, B planes resized to `[h, w]` (triangle filter), channel-major, values / 255.
+/// A crop resized to the network's `[h, w]` as the input encoding resizes it (triangle filter);
+/// an image already that size comes back unchanged, so a resized crop may be kept and encoded
+/// later with the same result.
+pub fn resized(img: &RgbImage, [h, w]: [usize; 2]) -> RgbImage {
+    image::imageops::resize(img, w as u32, h as u32, image::imageops::FilterType::Triangle)
+}
+
+/// A crop's R, G, B planes resized to `[h, w]` ([`resized`]), channel-major, values / 255.
 pub fn rgb_planes(img: &RgbImage, [h, w]: [usize; 2]) -> Vec<f32> {
-    let small = image::imageops::resize(img, w as u32, h as u32, image::imageops::FilterType::Triangle);
+    let small = resized(img, [h, w]);
     let mut input = vec![0f32; 3 * h * w];
     for (k, px) in small.pixels().enumerate() {
         for c in 0..3 {

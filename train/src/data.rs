@@ -5,14 +5,16 @@
 //! contrast jitter and noise only, never channel swaps, flips or rotations (the LEDs would not
 //! turn with them); a base model may also vary each sample's look as units differ ([`Look`]).
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use burn::data::dataloader::batcher::Batcher;
 use burn::data::dataset::Dataset;
 use burn::tensor::{Device, Tensor, TensorData};
 use formats::SplitMix64;
 use formats::dataset::{Manifest, SampleRecord, Split};
+use image::RgbImage;
 use model::{DenseDepthConfig, DepthScale, InputChannels, InputEncoder};
 use sensor::{DepthMap, Sensor};
 
@@ -123,6 +125,32 @@ pub struct DepthDataset {
     /// Whether a jittered item's look varies too ([`Jitter::look`]): training a base model
     /// for units it has not seen. Default false.
     pub vary_look: bool,
+    /// Samples decoded in an earlier epoch ([`DepthDataset::keep_decoded`]); shared by clones
+    /// (the loader's threads), emptied when the samples or the model change.
+    decoded: Arc<Mutex<DecodedCache>>,
+}
+
+/// What a sample's decoding gives before any augmentation: the crop resized to the network's
+/// input (8-bit RGB, as the encoding resizes it) and the depth at the output size in network
+/// units. Encoding and jitter run on it every epoch; decoding, checking and resizing once.
+struct Decoded {
+    image: RgbImage,
+    depth: Vec<f32>,
+}
+
+impl Decoded {
+    fn bytes(&self) -> usize {
+        self.image.as_raw().len() + self.depth.len() * std::mem::size_of::<f32>()
+    }
+}
+
+/// Decoded samples by index, up to a byte budget (0: none kept). Samples past the budget are
+/// decoded every epoch, as without it; a sample that failed is never kept, so it fails again.
+#[derive(Default)]
+struct DecodedCache {
+    budget_bytes: usize,
+    used_bytes: usize,
+    samples: HashMap<usize, Arc<Decoded>>,
 }
 
 impl DepthDataset {
@@ -182,6 +210,7 @@ impl DepthDataset {
             input_hw,
             output_hw,
             vary_look: false,
+            decoded: Arc::default(),
         })
     }
 
@@ -202,7 +231,27 @@ impl DepthDataset {
             unit.encoder = InputEncoder::new(model.input, self.input_hw, reference.as_ref())?;
             unit.mask = Arc::new(output_mask(&unit.sensor, self.output_hw));
         }
+        self.forget_decoded();
         Ok(())
+    }
+
+    /// Keeps decoded samples between epochs, up to `budget_bytes` (115 kB a sample at the
+    /// quickstart's 128x128, 1.2 MB at the paper's 480x640). Items are the same with or
+    /// without it; it spares each epoch the decoding, checking and resizing of every frame and
+    /// depth map, which on 2 cores the loader's threads take from the training step.
+    pub fn keep_decoded(&mut self, budget_bytes: usize) {
+        self.decoded = Arc::new(Mutex::new(DecodedCache { budget_bytes, ..DecodedCache::default() }));
+    }
+
+    /// Empties the kept samples (their indices or sizes no longer hold), keeping the budget.
+    fn forget_decoded(&mut self) {
+        let budget = self.decoded.lock().map_or(0, |c| c.budget_bytes);
+        self.keep_decoded(budget);
+    }
+
+    /// The bytes of decoded samples kept.
+    pub fn decoded_bytes(&self) -> usize {
+        self.decoded.lock().map_or(0, |c| c.used_bytes)
     }
 
     /// The first folder.
@@ -233,6 +282,7 @@ impl DepthDataset {
     pub fn keep(&mut self, ids: &[usize]) {
         self.records = ids.iter().map(|&i| self.records[i].clone()).collect();
         self.unit_of = ids.iter().map(|&i| self.unit_of[i]).collect();
+        self.forget_decoded();
     }
 
     /// The first folder's output mask (every item carries its own unit's).
@@ -242,6 +292,54 @@ impl DepthDataset {
 
     /// Loads item `i`, with `jitter` applied to the image when given.
     pub fn load(&self, i: usize, jitter: Option<Jitter>) -> Result<DepthItem, DataError> {
+        let record = &self.records[i];
+        let unit = &self.units[self.unit_of[i]];
+        let crop = unit.sensor.crop_size_px;
+        let kept = self.decoded.lock().ok().and_then(|c| c.samples.get(&i).cloned());
+        let decoded = match kept {
+            Some(d) => d,
+            None => {
+                let d = Arc::new(self.decode(i)?);
+                if let Ok(mut cache) = self.decoded.lock()
+                    && cache.used_bytes + d.bytes() <= cache.budget_bytes
+                    && !cache.samples.contains_key(&i)
+                {
+                    cache.used_bytes += d.bytes();
+                    cache.samples.insert(i, d.clone());
+                }
+                d
+            }
+        };
+        let img = &decoded.image;
+        // A sample rendered under its own look carries its own untouched frame.
+        let own_encoder;
+        let encoder = match &record.reference {
+            Some(rel) if unit.encoder.channels().needs_reference() => {
+                let path = unit.dir.join(rel);
+                let reference = sensor::frame::read_reference(&path, crop)?;
+                own_encoder = InputEncoder::new(unit.encoder.channels(), self.input_hw, Some(&reference))
+                    .map_err(|e| bad(&path, e))?;
+                &own_encoder
+            }
+            _ => &unit.encoder,
+        };
+        let look = jitter.filter(|_| self.vary_look).map(|j| move |planes: &mut [f32]| j.look.apply(planes));
+        let look = look.as_ref().map(|f| f as &dyn Fn(&mut [f32]));
+        let image = encoder.encode_looking(img, look, |planes| {
+            if let Some(j) = jitter {
+                let mut rng = SplitMix64::new(j.seed);
+                for v in planes {
+                    let noise = if j.noise_sd > 0.0 { rng.normal() as f32 * j.noise_sd } else { 0.0 };
+                    *v = (*v * j.gain + j.offset + noise).clamp(0.0, 1.0);
+                }
+            }
+        });
+        Ok(DepthItem { image, depth: decoded.depth.clone(), mask: unit.mask.clone() })
+    }
+
+    /// Sample `i` read, checked and resized: the part of [`load`](Self::load) that is the same
+    /// every epoch.
+    fn decode(&self, i: usize) -> Result<Decoded, DataError> {
         let record = &self.records[i];
         let unit = &self.units[self.unit_of[i]];
         let crop = unit.sensor.crop_size_px;
@@ -262,32 +360,11 @@ impl DepthDataset {
         if let Some(d) = depth.depth_mm.iter().find(|&&d| !(0.0..=limit).contains(&d)) {
             return Err(bad(&depth_path, format!("depth {d} mm is outside 0..{} mm", unit.sensor.max_depth_mm)));
         }
-        // A sample rendered under its own look carries its own untouched frame.
-        let own_encoder;
-        let encoder = match &record.reference {
-            Some(rel) if unit.encoder.channels().needs_reference() => {
-                let path = unit.dir.join(rel);
-                let reference = sensor::frame::read_reference(&path, crop)?;
-                own_encoder = InputEncoder::new(unit.encoder.channels(), self.input_hw, Some(&reference))
-                    .map_err(|e| bad(&path, e))?;
-                &own_encoder
-            }
-            _ => &unit.encoder,
-        };
-        let look = jitter.filter(|_| self.vary_look).map(|j| move |planes: &mut [f32]| j.look.apply(planes));
-        let look = look.as_ref().map(|f| f as &dyn Fn(&mut [f32]));
-        let image = encoder.encode_looking(&img, look, |planes| {
-            if let Some(j) = jitter {
-                let mut rng = SplitMix64::new(j.seed);
-                for v in planes {
-                    let noise = if j.noise_sd > 0.0 { rng.normal() as f32 * j.noise_sd } else { 0.0 };
-                    *v = (*v * j.gain + j.offset + noise).clamp(0.0, 1.0);
-                }
-            }
-        });
         let small = resize_plane(&depth.depth_mm, crop as usize, self.output_hw);
-        let depth = small.iter().map(|&d| self.scale.to_net(d)).collect();
-        Ok(DepthItem { image, depth, mask: unit.mask.clone() })
+        Ok(Decoded {
+            image: model::input::resized(&img, self.input_hw),
+            depth: small.iter().map(|&d| self.scale.to_net(d)).collect(),
+        })
     }
 }
 

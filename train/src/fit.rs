@@ -49,14 +49,26 @@ pub struct RunOptions {
     pub resume: bool,
     /// Threads that decode batches ahead of the step (0: decode in the step's thread).
     pub loader_workers: usize,
+    /// Megabytes of decoded samples kept from one epoch to the next (0: decode every epoch);
+    /// the items are the same either way ([`crate::data::DepthDataset::keep_decoded`]).
+    pub decoded_cache_mb: usize,
     /// Test hook: the loss of this global step is made non-finite.
     pub inject_nan_step: Option<u64>,
 }
 
 impl RunOptions {
-    /// One device, no resume, two loader threads.
+    /// Megabytes of decoded samples kept between epochs unless told otherwise.
+    pub const DEFAULT_DECODED_CACHE_MB: usize = 2048;
+
+    /// One device, no resume, two loader threads, the default cache of decoded samples.
     pub fn on(device: &Device) -> Self {
-        RunOptions { devices: vec![device.clone()], resume: false, loader_workers: 2, inject_nan_step: None }
+        RunOptions {
+            devices: vec![device.clone()],
+            resume: false,
+            loader_workers: 2,
+            decoded_cache_mb: Self::DEFAULT_DECODED_CACHE_MB,
+            inject_nan_step: None,
+        }
     }
 }
 
@@ -83,16 +95,31 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
     train.vary_look = config.vary_look;
     train.set_model(&start.model_config)?;
     val.set_model(&start.model_config)?;
+    // The cache's budget shared by the two splits as their samples are.
+    let budget = options.decoded_cache_mb << 20;
+    let train_share = budget as f64 * train.len() as f64 / (train.len() + val.len()).max(1) as f64;
+    train.keep_decoded(train_share as usize);
+    val.keep_decoded(budget.saturating_sub(train_share as usize));
     let mut run = Run::start(run_dir, config, start, options, train, val)?;
-    while run.state.epoch < config.epochs {
-        if let Some(why) = run.state.stop_reason() {
-            eprintln!("{why}");
-            break;
+    // The epochs run on one of rayon's workers (`model::backend::in_pool`), so that the kernels'
+    // scatters start inside the pool instead of being injected one by one (the quickstart's
+    // epochs 1.18-1.35x faster, BENCHMARKS.md "The whole training step"), all on
+    // that one thread: Burn keeps batch norm's running statistics per thread, and steps on
+    // whichever worker took each would make them follow the schedule. The loop blocks on the
+    // loader's threads and the other devices' workers while it holds its worker; neither uses
+    // rayon, so a pool of one thread cannot deadlock on them.
+    model::backend::in_pool(|| -> Result<()> {
+        while run.state.epoch < config.epochs {
+            if let Some(why) = run.state.stop_reason() {
+                eprintln!("{why}");
+                break;
+            }
+            let epoch_start = Instant::now();
+            run.steps()?;
+            run.end_epoch(epoch_start)?;
         }
-        let epoch_start = Instant::now();
-        run.steps()?;
-        run.end_epoch(epoch_start)?;
-    }
+        Ok(())
+    })?;
     let net = match checkpoint::best(run_dir) {
         Some(best) => checkpoint::restore_model(&best, &run.state.model, device)?,
         None => run.net.valid(),

@@ -157,6 +157,11 @@ struct Common {
     /// Threads that decode batches ahead of the training step (0: none).
     #[arg(long, default_value_t = 2)]
     loader_workers: usize,
+    /// Megabytes of decoded samples (frames resized to the input, depth maps) kept from one
+    /// epoch to the next, so that later epochs do not decode them again (0: decode every epoch;
+    /// the results are the same either way).
+    #[arg(long, default_value_t = RunOptions::DEFAULT_DECODED_CACHE_MB)]
+    decoded_cache_mb: usize,
     /// Test hook: the loss of this step is made non-finite.
     #[arg(long, hide = true)]
     inject_nan_step: Option<u64>,
@@ -271,7 +276,13 @@ fn options(c: &Common) -> Result<RunOptions> {
         Some(list) => model::backend::devices(list),
         None => model::backend::working_device(&c.device).map(|d| vec![d]),
     }?;
-    Ok(RunOptions { devices, resume: c.resume, loader_workers: c.loader_workers, inject_nan_step: c.inject_nan_step })
+    Ok(RunOptions {
+        devices,
+        resume: c.resume,
+        loader_workers: c.loader_workers,
+        decoded_cache_mb: c.decoded_cache_mb,
+        inject_nan_step: c.inject_nan_step,
+    })
 }
 
 /// The run's settings: `base` (a recipe's, or fine-tuning's) with every flag given over it,

@@ -142,14 +142,19 @@ fn a_tiny_dataset_trains_and_its_bundle_predicts_the_same() {
     assert_eq!(a, b, "the exported bundle predicts exactly what the trained network does");
 }
 
+/// The tiny network reading RGB and its difference to the reference, output at full resolution.
+fn difference_full_resolution() -> model::DenseDepthConfig {
+    model::DenseDepthConfig::new(model::DenseNetConfig::tiny())
+        .with_input(model::InputChannels::RgbDifference)
+        .with_full_resolution(true)
+}
+
 #[test]
 fn a_reference_difference_full_resolution_network_trains_and_exports() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     tiny_dataset(&data);
-    let model_config = model::DenseDepthConfig::new(model::DenseNetConfig::tiny())
-        .with_input(model::InputChannels::RgbDifference)
-        .with_full_resolution(true);
+    let model_config = difference_full_resolution();
     // Items carry six channels and full-size targets; the reference frame's differences are 0.
     let mut set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
     set.set_model(&model_config).unwrap();
@@ -176,6 +181,47 @@ fn a_reference_difference_full_resolution_network_trains_and_exports() {
     let e =
         fit(&tmp.path().join("run2"), &config, Start { model_config, weights: None }, &device, false).err().unwrap();
     assert!(format!("{e:#}").contains("reference.png"), "{e:#}");
+}
+
+/// Samples kept decoded between epochs give the items decoding them again gives, jitter and
+/// all, and the kept bytes never pass the budget.
+#[test]
+fn decoded_samples_kept_between_epochs_give_the_same_items() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    tiny_dataset(&data);
+    let model_config = difference_full_resolution();
+    let open = |budget: Option<usize>| {
+        let mut set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
+        set.set_model(&model_config).unwrap();
+        if let Some(b) = budget {
+            set.keep_decoded(b);
+        }
+        set
+    };
+    let fresh = open(None);
+    let all = open(Some(1 << 30));
+    // One sample's bytes: a 64x64 RGB crop and a 64x64 depth map.
+    let one = 64 * 64 * 3 + 64 * 64 * 4;
+    let some = open(Some(2 * one + one / 2));
+    for epoch in 0..3u64 {
+        for i in 0..fresh.len() {
+            let jitter = (epoch > 0).then(|| train::data::Jitter::draw(5, epoch, i as u64));
+            let want = fresh.load(i, jitter).unwrap();
+            for (name, set) in [("all", &all), ("some", &some)] {
+                let got = set.load(i, jitter).unwrap();
+                assert_eq!((&got.image, &got.depth), (&want.image, &want.depth), "{name}: epoch {epoch}, sample {i}");
+            }
+        }
+    }
+    assert_eq!(fresh.decoded_bytes(), 0);
+    assert_eq!(all.decoded_bytes(), fresh.len() * one);
+    assert_eq!(some.decoded_bytes(), 2 * one);
+    // Other samples, other indices: what was kept goes.
+    let mut fewer = all.clone();
+    fewer.keep(&[3, 1]);
+    assert_eq!(fewer.decoded_bytes(), 0);
+    assert_eq!(fewer.load(0, None).unwrap().depth, fresh.load(3, None).unwrap().depth);
 }
 
 #[test]
@@ -370,9 +416,7 @@ fn several_units_train_together_each_read_with_its_own_unit() {
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
     unit_dataset(&a, 3, 8);
     unit_dataset(&b, 9, 8);
-    let model_config = model::DenseDepthConfig::new(model::DenseNetConfig::tiny())
-        .with_input(model::InputChannels::RgbDifference)
-        .with_full_resolution(true);
+    let model_config = difference_full_resolution();
     let open = |dirs: &[PathBuf]| {
         let mut set = train::data::DepthDataset::open_all(dirs, None, [64, 64]).unwrap();
         set.set_model(&model_config).unwrap();
@@ -476,9 +520,7 @@ fn samples_under_random_looks_are_read_against_their_own_untouched_frames() {
         ..formats::dataset::GeneratorParams::new(2, 12, &kit.source)
     };
     dataset::generate::generate_with_unit(&data, &kit, 3, 25.0, params).unwrap();
-    let model_config = model::DenseDepthConfig::new(model::DenseNetConfig::tiny())
-        .with_input(model::InputChannels::RgbDifference)
-        .with_full_resolution(true);
+    let model_config = difference_full_resolution();
     let mut set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
     set.set_model(&model_config).unwrap();
     let unit_reference = sensor::frame::read(&data.join("unit/reference.png")).unwrap();

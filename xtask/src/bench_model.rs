@@ -153,11 +153,14 @@ pub fn run(args: Args) -> Result<()> {
         let step = if devices.len() == 1 {
             let images = Tensor::<4>::random([batch, channels, h, w], Distribution::Uniform(0.0, 1.0), &train_device);
             let target = Tensor::<4>::random([batch, 1, oh, ow], Distribution::Uniform(10.0, 1000.0), &train_device);
+            // From inside rayon's pool, as `train`'s fit runs its steps.
             time_ms(args.reps, || {
-                let loss = loss_config.forward(net.forward(images.clone()), target.clone()).total;
-                let grads = GradientsParams::from_grads(loss.backward(), &net);
-                net = optim.step(1e-4, net.clone(), grads);
-                sync();
+                model::backend::in_pool(|| {
+                    let loss = loss_config.forward(net.forward(images.clone()), target.clone()).total;
+                    let grads = GradientsParams::from_grads(loss.backward(), &net);
+                    net = optim.step(1e-4, net.clone(), grads);
+                    sync();
+                })
             })
         } else {
             // The training loop's own data parallelism, on a batch of random samples (every
@@ -179,10 +182,12 @@ pub fn run(args: Args) -> Result<()> {
                 sync();
             })
         };
+        let loss_ms = loss_alone(&args.recipe, [batch, oh, ow], &train_device, args.reps);
         println!(
-            "batch {batch}: train step {}, {:.1} images/s",
+            "batch {batch}: train step {}, {:.1} images/s; the recipe's masked loss alone, forward and backward: {}",
             step.median_and_quartiles(),
-            batch as f64 * 1e3 / step.median
+            batch as f64 * 1e3 / step.median,
+            loss_ms.median_and_quartiles()
         );
         rows.push((batch, forward, Some(step)));
     }
@@ -274,8 +279,8 @@ fn times(line: &str, name: &str) -> Option<Summary> {
 /// The inference forward pass and a training step's forward and backward, from the main thread
 /// with and without `in_pool`'s hop into rayon's pool, alternated run by run (this VM moves
 /// whole runs by more than the difference); checks that inference gives the same output both
-/// ways. The training side is a candidate, not applied: `DenseDepth::forward` hops for inference
-/// alone.
+/// ways. The training side hops step by step here; `train`'s fit hops once for its whole epoch
+/// loop (batch norm's running statistics are kept per thread, so the steps stay on one worker).
 fn pool_hop_ab(config: &DenseDepthConfig, device: &burn::tensor::Device, shape: [usize; 4], reps: usize) {
     let [batch, _, h, w] = shape;
     let net = config.init(device).folded();
@@ -322,6 +327,37 @@ fn pool_hop_ab(config: &DenseDepthConfig, device: &burn::tensor::Device, shape: 
         m(&times[0][1]),
         m(&times[1][1])
     );
+}
+
+/// The recipe's training loss (its contact weight, over a disk-shaped mask of useful pixels with
+/// a third of them in contact) forward and backward on a tracked prediction: the loss's share of
+/// a step.
+fn loss_alone(
+    recipe: &train::Recipe,
+    [batch, h, w]: [usize; 3],
+    device: &burn::tensor::Device,
+    reps: usize,
+) -> Summary {
+    let config = recipe.fit_config(std::path::PathBuf::new());
+    let range = config.net_range[1] - config.net_range[0];
+    let loss = DepthLossConfig::new()
+        .with_dynamic_range(range as f64)
+        .with_contact_weight(config.contact_weight)
+        .with_contact_above((0.02 * range) as f64);
+    let (cy, cx, r) = (h as f32 / 2.0, w as f32 / 2.0, h.min(w) as f32 / 2.0);
+    let disk: Vec<f32> =
+        (0..h * w).map(|i| (((i / w) as f32 + 0.5 - cy).hypot((i % w) as f32 + 0.5 - cx) < r) as u8 as f32).collect();
+    let mask = Tensor::<4>::from_data(burn::tensor::TensorData::new(disk.repeat(batch), [batch, 1, h, w]), device);
+    let target = Tensor::<4>::random([batch, 1, h, w], Distribution::Uniform(0.0, 0.03 * range as f64), device);
+    let pred = Tensor::<4>::random([batch, 1, h, w], Distribution::Uniform(0.0, 0.03 * range as f64), device);
+    time_ms(reps, || {
+        model::backend::in_pool(|| {
+            let pred = pred.clone().require_grad();
+            let total = loss.forward_masked(pred.clone(), target.clone(), Some(mask.clone())).total;
+            let grads = total.backward();
+            let _ = pred.grad(&grads).map(|g| g.into_data());
+        })
+    })
 }
 
 /// `key=value` of a peer's output line, as a number.

@@ -83,12 +83,17 @@ pub(crate) fn weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
             wide = spread;
             (&padded[..], &wide[..])
         };
-        // Each rayon split sums its column ranges into one buffer of its own.
-        let image_total = column_chunks(n, 512, MAX_COLUMNS)
+        // The columns fall into a fixed number of contiguous groups, each summed into a buffer
+        // of its own on whichever thread takes it; the buffers are then added in group order.
+        // Rayon's `fold` would make one buffer per split, and its splits follow work stealing,
+        // so the sum's rounding (and a training run's weights) would follow the schedule.
+        let chunks = column_chunks(n, 512, MAX_COLUMNS);
+        let groups = reduction_groups(chunks.len());
+        let partials: Vec<Vec<f32>> = groups
             .into_par_iter()
-            .fold(
-                || vec![0.0f32; size],
-                |mut part, cols| {
+            .map(|group| {
+                let mut part = vec![0.0f32; size];
+                for cols in &chunks[group] {
                     for tap in 0..k * k {
                         let shift = (tap / k) * wp + tap % k;
                         // SAFETY: `part` is [o, c, k, k] written at stride k*k from `tap`; the
@@ -106,18 +111,22 @@ pub(crate) fn weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
                             );
                         }
                     }
-                    part
-                },
-            )
-            .reduce_with(|mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-                a
-            });
-        if let Some(image_total) = image_total {
-            total.iter_mut().zip(&image_total).for_each(|(t, p)| *t += p);
+                }
+                part
+            })
+            .collect();
+        for part in &partials {
+            total.iter_mut().zip(part).for_each(|(t, p)| *t += p);
         }
     }
     total
+}
+
+/// `chunks` chunk indices cut into at most one contiguous range per rayon thread: as many
+/// partial sums as the pool can fill, in an order that does not depend on the schedule.
+fn reduction_groups(chunks: usize) -> Vec<std::ops::Range<usize>> {
+    let size = chunks.div_ceil(rayon::current_num_threads().max(1)).max(1);
+    (0..chunks).step_by(size).map(|start| start..(start + size).min(chunks)).collect()
 }
 
 #[cfg(test)]
@@ -232,6 +241,31 @@ mod tests {
             let expected_dx = one_hot(nx, &|one| naive(one, &weight, &s));
             close(&weight_grad(&x, &grad, &s), &expected_dw, &format!("weight grad {s:?}"));
             close(&input_grad(&grad, &weight, &s), &expected_dx, &format!("input grad {s:?}"));
+        }
+    }
+
+    /// The weight gradient's sum does not follow the schedule: a training step gives the same
+    /// weights whether it runs from inside rayon's pool or outside it, run after run. A shape
+    /// with many column chunks, so that the pool has something to steal.
+    #[test]
+    fn the_weight_gradient_is_the_same_whoever_runs_it() {
+        let s = ConvShape {
+            batch: 2,
+            channels_in: 8,
+            channels_out: 6,
+            height: 96,
+            width: 96,
+            kernel: 3,
+            padding: 1,
+            stride: 1,
+        };
+        let x = values(s.batch * s.channels_in * s.height * s.width, 7);
+        let grad = values(s.batch * s.channels_out * s.out_height() * s.out_width(), 8);
+        let outside = weight_grad(&x, &grad, &s);
+        for round in 0..6 {
+            let again =
+                if round % 2 == 0 { rayon::scope(|_| weight_grad(&x, &grad, &s)) } else { weight_grad(&x, &grad, &s) };
+            assert!(again.iter().zip(&outside).all(|(a, b)| a.to_bits() == b.to_bits()), "round {round}");
         }
     }
 }

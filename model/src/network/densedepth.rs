@@ -48,10 +48,11 @@ impl DenseDepth {
         }
         let plain_flex = crate::kernels::plain_flex(&images.device());
         let run = || self.decoder.forward(self.encoder.forward(images.clone()), images, mode);
-        // Inference on the CPU from inside rayon's pool (`backend::in_pool`). Training stays on
-        // its caller's thread: Burn keeps batch norm's running statistics per thread and averages
-        // them when read, so a training forward on whichever worker takes it makes them follow
-        // the schedule (a run and its killed-and-resumed twin then differ; BENCHMARKS.md).
+        // Inference on the CPU from inside rayon's pool (`backend::in_pool`). A training forward
+        // is not hopped call by call: Burn keeps batch norm's running statistics per thread and
+        // averages them when read, so forwards on whichever worker takes each would make them
+        // follow the schedule (a run and its killed-and-resumed twin then differ; BENCHMARKS.md).
+        // `train`'s fit runs its whole epoch loop on one worker instead.
         if plain_flex { crate::backend::in_pool(run) } else { run() }
     }
 
