@@ -96,7 +96,7 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
     train.set_model(&start.model_config)?;
     val.set_model(&start.model_config)?;
     // The cache's budget shared by the two splits as their samples are.
-    let budget = options.decoded_cache_mb << 20;
+    let budget = options.decoded_cache_mb.saturating_mul(1 << 20);
     let train_share = budget as f64 * train.len() as f64 / (train.len() + val.len()).max(1) as f64;
     train.keep_decoded(train_share as usize);
     val.keep_decoded(budget.saturating_sub(train_share as usize));
