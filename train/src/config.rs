@@ -210,6 +210,15 @@ impl FitConfig {
         DepthScale { max_depth_mm: max_depth_mm as f32, net_min: self.net_range[0], net_max: self.net_range[1] }
     }
 
+    /// The training loss for depths in `scale`'s units: SSIM over its range, this run's contact
+    /// weight, contact where the target is deeper than `sensor::CONTACT_THRESHOLD_MM`.
+    pub fn loss(&self, scale: &DepthScale) -> model::DepthLossConfig {
+        model::DepthLossConfig::new()
+            .with_dynamic_range(scale.range() as f64)
+            .with_contact_weight(self.contact_weight)
+            .with_contact_above(scale.to_net(sensor::CONTACT_THRESHOLD_MM) as f64)
+    }
+
     /// The learning rate of (1-based) step `step` of `total` steps.
     pub fn learning_rate(&self, step: u64, total: u64) -> f64 {
         if step <= self.warmup_steps {

@@ -260,10 +260,7 @@ impl<'a> Run<'a> {
             // their running statistics and leave them as they were.
             net.encoder = net.encoder.freeze();
         }
-        let loss = DepthLossConfig::new()
-            .with_dynamic_range(train.scale.range() as f64)
-            .with_contact_weight(config.contact_weight)
-            .with_contact_above(train.scale.to_net(sensor::CONTACT_THRESHOLD_MM) as f64);
+        let loss = config.loss(&train.scale);
         let batcher = DepthBatcher::for_data(&train);
         let parallel = DataParallel::new(&options.devices, batcher.clone(), loss)?;
         Ok(Run { dir, config, options, train: Arc::new(train), val, batcher, parallel, net, optim, state, bad_run: 0 })

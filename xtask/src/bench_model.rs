@@ -329,9 +329,9 @@ fn pool_hop_ab(config: &DenseDepthConfig, device: &burn::tensor::Device, shape: 
     );
 }
 
-/// The recipe's training loss (its contact weight, over a disk-shaped mask of useful pixels with
-/// a third of them in contact) forward and backward on a tracked prediction: the loss's share of
-/// a step.
+/// The recipe's training loss (`FitConfig::loss`, the paper's sensor's depth range) over a
+/// disk-shaped mask of useful pixels, with targets up to 3 % of the range, forward and backward on
+/// a tracked prediction: the loss's share of a step.
 fn loss_alone(
     recipe: &train::Recipe,
     [batch, h, w]: [usize; 3],
@@ -339,11 +339,8 @@ fn loss_alone(
     reps: usize,
 ) -> Summary {
     let config = recipe.fit_config(std::path::PathBuf::new());
+    let loss = config.loss(&config.scale(sensor::Sensor::default().max_depth_mm));
     let range = config.net_range[1] - config.net_range[0];
-    let loss = DepthLossConfig::new()
-        .with_dynamic_range(range as f64)
-        .with_contact_weight(config.contact_weight)
-        .with_contact_above((0.02 * range) as f64);
     let (cy, cx, r) = (h as f32 / 2.0, w as f32 / 2.0, h.min(w) as f32 / 2.0);
     let disk: Vec<f32> =
         (0..h * w).map(|i| (((i / w) as f32 + 0.5 - cy).hypot((i % w) as f32 + 0.5 - cx) < r) as u8 as f32).collect();
