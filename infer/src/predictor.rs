@@ -66,9 +66,10 @@ impl Predictor {
             Some(name) => Some(sensor::frame::read_reference(&dir.join(name), file.sensor.crop_size_px)?),
             None => None,
         };
-        let encoder =
-            InputEncoder::new(file.model.input, [file.input_height_px, file.input_width_px], reference.as_ref())
-                .map_err(|e| InferError::File { path: dir.join(model::bundle::BUNDLE_JSON), message: e.to_string() })?;
+        let bad = |message: String| InferError::File { path: dir.join(model::bundle::BUNDLE_JSON), message };
+        let encoding = file.encoding().map_err(bad)?;
+        let encoder = InputEncoder::new(encoding, [file.input_height_px, file.input_width_px], reference.as_ref())
+            .map_err(|e| bad(e.to_string()))?;
         let mask = file.sensor.valid_mask();
         let rays = file.sensor.pixel_rays();
         let out_hw = file.model.output_hw([file.input_height_px, file.input_width_px]);
@@ -113,9 +114,8 @@ impl Predictor {
     pub fn set_reference(&mut self, reference: RgbImage) -> Result<(), InferError> {
         self.check(&reference)?;
         let hw = [self.file.input_height_px, self.file.input_width_px];
-        let encoder = InputEncoder::new(self.file.model.input, hw, Some(&reference)).map_err(|e| InferError::File {
-            path: self.dir.join(model::bundle::BUNDLE_JSON),
-            message: e.to_string(),
+        let encoder = InputEncoder::new(self.encoder.encoding(), hw, Some(&reference)).map_err(|e| {
+            InferError::File { path: self.dir.join(model::bundle::BUNDLE_JSON), message: e.to_string() }
         })?;
         // The tare reads the reference as every frame will be read: against itself.
         let old = (std::mem::replace(&mut self.encoder, encoder), self.reference.replace(reference.clone()));

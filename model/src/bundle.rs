@@ -22,7 +22,7 @@ use sensor::Sensor;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
-use crate::{DenseDepth, DenseDepthConfig, DepthScale, InputChannels};
+use crate::{DenseDepth, DenseDepthConfig, DepthScale, InputEncoding};
 
 pub const BUNDLE_FORMAT_VERSION: u32 = 1;
 pub const BUNDLE_JSON: &str = "bundle.json";
@@ -40,8 +40,9 @@ pub struct BundleFile {
     /// Network input (the crop is resized to it); output is half of each side.
     pub input_height_px: usize,
     pub input_width_px: usize,
-    /// Input pixels: `InputChannels::encoding` of the model's input (RGB, each channel divided
-    /// by 255, no mean or deviation subtracted; then, if used, the reference difference).
+    /// Input pixels: [`InputEncoding::text`] (RGB, each channel divided by 255, no mean or
+    /// deviation subtracted; then, if the model reads it, the reference difference times the
+    /// gain fitted to the unit's data).
     pub input_encoding: String,
     pub depth_scale: DepthScale,
     pub sensor: Sensor,
@@ -135,7 +136,7 @@ impl BundleFile {
     pub fn new(model: DenseDepthConfig, [h, w]: [usize; 2], sensor: Sensor, depth_scale: DepthScale) -> Self {
         BundleFile {
             format_version: BUNDLE_FORMAT_VERSION,
-            input_encoding: model.input.encoding().into(),
+            input_encoding: InputEncoding::new(model.input).text(),
             model,
             input_height_px: h,
             input_width_px: w,
@@ -147,6 +148,26 @@ impl BundleFile {
             safetensors_keys: SafetensorsKeys::Burn,
             contact_gate: None,
         }
+    }
+
+    /// The input encoding `input_encoding` names, checked against the model's input and the
+    /// reference image; the error says what is wrong.
+    pub fn encoding(&self) -> Result<InputEncoding, String> {
+        let Some(encoding) = InputEncoding::parse(&self.input_encoding) else {
+            return Err(format!("unknown input encoding {:?}", self.input_encoding));
+        };
+        let c = encoding.channels;
+        if c != self.model.input {
+            return Err(format!(
+                "input encoding {:?} does not match the model's input ({})",
+                self.input_encoding,
+                self.model.input.name()
+            ));
+        }
+        if c.needs_reference() && self.reference_image.is_none() {
+            return Err(format!("the model's input ({}) needs a reference image and the bundle names none", c.name()));
+        }
+        Ok(encoding)
     }
 
     /// Reads and checks `DIR/bundle.json`, and the bundle whole: every file it names lies in
@@ -245,26 +266,7 @@ impl BundleFile {
         }
         file.model.check().map_err(|e| err(path, format!("model: {e}")))?;
         file.depth_scale.check().map_err(|e| err(path, format!("depth_scale: {e}")))?;
-        match InputChannels::from_encoding(&file.input_encoding) {
-            None => return Err(err(path, format!("unknown input encoding {:?}", file.input_encoding))),
-            Some(c) if c != file.model.input => {
-                return Err(err(
-                    path,
-                    format!(
-                        "input encoding {:?} does not match the model's input ({})",
-                        file.input_encoding,
-                        file.model.input.name()
-                    ),
-                ));
-            }
-            Some(c) if c.needs_reference() && file.reference_image.is_none() => {
-                return Err(err(
-                    path,
-                    format!("the model's input ({}) needs a reference image and the bundle names none", c.name()),
-                ));
-            }
-            Some(_) => {}
-        }
+        file.encoding().map_err(|e| err(path, e))?;
         Ok(file)
     }
 }
@@ -292,10 +294,10 @@ pub fn write_bundle(
             format!("not written: {} tensor(s) hold NaN or infinite values: {}", names.len(), some_names(&names)),
         ));
     }
+    let mut file = file.clone();
+    file.reference_image = reference_png.map(|_| REFERENCE_PNG.to_string());
+    file.encoding().map_err(|e| err(dir, format!("not written: {e}")))?;
     formats::fs::write_dir_atomic(dir, |tmp| {
-        let mut file = file.clone();
-        file.reference_image = reference_png.map(|_| REFERENCE_PNG.to_string());
-        file.input_encoding = file.model.input.encoding().to_string();
         if let Some(bytes) = reference_png {
             std::fs::write(tmp.join(REFERENCE_PNG), bytes).map_err(|e| err(&tmp.join(REFERENCE_PNG), e))?;
         }
@@ -539,5 +541,42 @@ mod tests {
         std::fs::remove_file(dir.join(WEIGHTS_BURNPACK)).unwrap();
         let e = load_bundle(&dir, &device).unwrap_err().to_string();
         assert!(e.contains("weights.bpk"), "{e}");
+    }
+
+    #[test]
+    fn the_input_encoding_is_kept_and_checked_against_the_model() {
+        let device = crate::backend::default_device();
+        let config = DenseDepthConfig::new(DenseNetConfig::tiny()).with_input(crate::InputChannels::RgbDifference);
+        let model = config.init(&device);
+        let tmp = tempfile::tempdir().unwrap();
+        let mut png = Vec::new();
+        image::RgbImage::from_pixel(8, 8, image::Rgb([90, 120, 150]))
+            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        let fitted = InputEncoding { channels: config.input, difference_gain: 9.37 };
+        let file = BundleFile {
+            input_encoding: fitted.text(),
+            ..BundleFile::new(config, [64, 64], Sensor::default(), DepthScale::paper(9.4))
+        };
+        // The unit's gain goes into the bundle and comes back as it was.
+        let dir = tmp.path().join("b");
+        write_bundle(&dir, &model, &file, Some(&png), &[]).unwrap();
+        let (_, read) = load_bundle(&dir, &device).unwrap();
+        assert_eq!(read.encoding(), Ok(fitted));
+        assert_eq!(read.input_encoding, "rgb/255,9.37*(rgb-reference)/255");
+        // An encoding that is no encoding, or not the model's, is written by nobody...
+        for (text, why) in [("rgb/255,0*(rgb-reference)/255", "unknown input encoding"), ("rgb/255", "does not match")]
+        {
+            let bad = BundleFile { input_encoding: text.into(), ..file.clone() };
+            let e = write_bundle(&tmp.path().join("no"), &model, &bad, Some(&png), &[]).unwrap_err().to_string();
+            assert!(e.contains("not written") && e.contains(why), "{text}: {e}");
+            assert!(!tmp.path().join("no").exists());
+        }
+        // ... and refused when read, naming the file.
+        let json = dir.join(BUNDLE_JSON);
+        let text = std::fs::read_to_string(&json).unwrap();
+        std::fs::write(&json, text.replace("9.37*", "nan*")).unwrap();
+        let e = load_bundle(&dir, &device).unwrap_err().to_string();
+        assert!(e.contains("bundle.json") && e.contains("unknown input encoding"), "{e}");
     }
 }

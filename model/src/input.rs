@@ -16,13 +16,83 @@ pub enum InputChannels {
     /// R, G, B in [0, 1]: the paper's input.
     #[default]
     Rgb,
-    /// R, G, B in [0, 1], then `DIFFERENCE_GAIN * (frame - reference)` for each of R, G, B.
+    /// R, G, B in [0, 1], then `gain * (frame - reference)` for each of R, G, B (the gain fitted
+    /// to the unit's data: [`InputEncoding`]).
     RgbDifference,
 }
 
-/// Scale of the difference channels: contact changes shading by a few tens of grey levels,
-/// noise by one or two; four times the difference puts contact near the RGB channels' range.
+/// Scale of the difference channels where a unit's data does not say otherwise (no labelled
+/// contact to measure, bundles written before [`InputEncoding::difference_gain`] was fitted):
+/// contact changes the renderer's shading by a few grey levels on average, noise by one or two;
+/// four times the difference puts contact near the RGB channels' range.
 pub const DIFFERENCE_GAIN: f32 = 4.0;
+
+/// What the difference channels should read where a unit's labelled contact is: the mean over
+/// those pixels of |frame - reference| (the three channels' mean, in [0, 1]) times the gain.
+/// Measured at the quickstart's 128x128 (`DepthDataset::set_model`), contact changes the
+/// project's renderer's units 0, 3, 7, 11, 23 and 31 by 0.019..0.029 and the independent image
+/// model's (`gelcam`) units 40..44 by 0.007..0.017. The target keeps the renderer's units near
+/// the [`DIFFERENCE_GAIN`] the recipe was measured with (3.1..4.7; unit 7, the quickstart's,
+/// 4.05) and gives a gel that changes less a larger gain (gelcam's 5.3..12.7), so the network
+/// reads every unit's contact at one scale and a base model's inputs keep their size when it
+/// is fine-tuned on another unit.
+pub const DIFFERENCE_TARGET: f32 = 0.09;
+
+/// The gains a unit's data may give: beyond these the measurement is suspect (a unit whose
+/// contact changes its frame by under a tenth of a grey level on average is not readable; one
+/// that changes it by half the range needs no gain).
+pub const DIFFERENCE_GAIN_RANGE: [f32; 2] = [1.0, 64.0];
+
+/// How the network's input is made from a crop: the channels and, where they hold the
+/// reference difference, its gain. The bundle records it as text (`input_encoding`), e.g.
+/// `rgb/255,4.37*(rgb-reference)/255`, so that a reader of the bundle needs nothing else.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InputEncoding {
+    pub channels: InputChannels,
+    /// Multiplies `(frame - reference) / 255` in the difference channels; unused by RGB alone.
+    pub difference_gain: f32,
+}
+
+impl InputEncoding {
+    /// `channels` with the default gain.
+    pub fn new(channels: InputChannels) -> Self {
+        InputEncoding { channels, difference_gain: DIFFERENCE_GAIN }
+    }
+
+    /// The gain that brings a unit's measured `contact_change` (mean |frame - reference| over
+    /// its labelled contact pixels, in [0, 1]) to [`DIFFERENCE_TARGET`], to two decimals, kept
+    /// within [`DIFFERENCE_GAIN_RANGE`]; `None` (nothing measured) gives the default.
+    pub fn fitted(channels: InputChannels, contact_change: Option<f64>) -> Self {
+        let gain = match contact_change {
+            Some(c) if c.is_finite() && c > 0.0 => {
+                let [lo, hi] = DIFFERENCE_GAIN_RANGE;
+                ((DIFFERENCE_TARGET as f64 / c * 100.0).round() / 100.0).clamp(lo as f64, hi as f64) as f32
+            }
+            _ => DIFFERENCE_GAIN,
+        };
+        InputEncoding { channels, difference_gain: gain }
+    }
+
+    /// The bundle's `input_encoding` text.
+    pub fn text(&self) -> String {
+        match self.channels {
+            InputChannels::Rgb => "rgb/255".into(),
+            InputChannels::RgbDifference => format!("rgb/255,{}*(rgb-reference)/255", self.difference_gain),
+        }
+    }
+
+    /// The encoding whose [`text`](Self::text) is `text`; `None` for anything else (a gain must
+    /// be finite and within [`DIFFERENCE_GAIN_RANGE`]).
+    pub fn parse(text: &str) -> Option<Self> {
+        if text == "rgb/255" {
+            return Some(InputEncoding::new(InputChannels::Rgb));
+        }
+        let gain: f32 = text.strip_prefix("rgb/255,")?.strip_suffix("*(rgb-reference)/255")?.parse().ok()?;
+        let [lo, hi] = DIFFERENCE_GAIN_RANGE;
+        (gain.is_finite() && (lo..=hi).contains(&gain))
+            .then_some(InputEncoding { channels: InputChannels::RgbDifference, difference_gain: gain })
+    }
+}
 
 impl InputChannels {
     /// Channels the network's first convolution takes.
@@ -36,19 +106,6 @@ impl InputChannels {
     /// Whether encoding needs the unit's reference frame.
     pub fn needs_reference(self) -> bool {
         self == InputChannels::RgbDifference
-    }
-
-    /// The bundle's `input_encoding` text for these channels.
-    pub fn encoding(self) -> &'static str {
-        match self {
-            InputChannels::Rgb => "rgb/255",
-            InputChannels::RgbDifference => "rgb/255,4*(rgb-reference)/255",
-        }
-    }
-
-    /// The channels whose [`encoding`](Self::encoding) is `text`.
-    pub fn from_encoding(text: &str) -> Option<Self> {
-        [InputChannels::Rgb, InputChannels::RgbDifference].into_iter().find(|c| c.encoding() == text)
     }
 
     pub const ALL: [InputChannels; 2] = [InputChannels::Rgb, InputChannels::RgbDifference];
@@ -101,16 +158,17 @@ pub struct InputError(pub String);
 /// Turns crops into the network's input for one unit at one input size.
 #[derive(Clone, Debug)]
 pub struct InputEncoder {
-    channels: InputChannels,
+    encoding: InputEncoding,
     hw: [usize; 2],
     /// The reference frame's R, G, B planes, when the channels use it.
     reference: Option<Vec<f32>>,
 }
 
 impl InputEncoder {
-    /// An encoder for `channels` at `hw`; `reference` (the unit's no-contact crop) must be given
-    /// when the channels use it, and is ignored otherwise.
-    pub fn new(channels: InputChannels, hw: [usize; 2], reference: Option<&RgbImage>) -> Result<Self, InputError> {
+    /// An encoder for `encoding` at `hw`; `reference` (the unit's no-contact crop) must be given
+    /// when its channels use it, and is ignored otherwise.
+    pub fn new(encoding: InputEncoding, hw: [usize; 2], reference: Option<&RgbImage>) -> Result<Self, InputError> {
+        let channels = encoding.channels;
         let reference = match (channels.needs_reference(), reference) {
             (false, _) => None,
             (true, Some(r)) => Some(rgb_planes(r, hw)),
@@ -121,11 +179,15 @@ impl InputEncoder {
                 )));
             }
         };
-        Ok(InputEncoder { channels, hw, reference })
+        Ok(InputEncoder { encoding, hw, reference })
     }
 
     pub fn channels(&self) -> InputChannels {
-        self.channels
+        self.encoding.channels
+    }
+
+    pub fn encoding(&self) -> InputEncoding {
+        self.encoding
     }
 
     pub fn hw(&self) -> [usize; 2] {
@@ -165,7 +227,8 @@ impl InputEncoder {
                 r
             });
             let reference = looked.as_deref().unwrap_or(reference);
-            let difference: Vec<f32> = planes.iter().zip(reference).map(|(a, b)| DIFFERENCE_GAIN * (a - b)).collect();
+            let gain = self.encoding.difference_gain;
+            let difference: Vec<f32> = planes.iter().zip(reference).map(|(a, b)| gain * (a - b)).collect();
             planes.extend(difference);
         }
         planes
@@ -190,7 +253,8 @@ mod tests {
     #[test]
     fn difference_channels_follow_the_rgb_ones_and_vanish_on_the_reference() {
         let reference = uniform([100, 100, 100]);
-        let enc = InputEncoder::new(InputChannels::RgbDifference, [8, 16], Some(&reference)).unwrap();
+        let enc =
+            InputEncoder::new(InputEncoding::new(InputChannels::RgbDifference), [8, 16], Some(&reference)).unwrap();
         let same = enc.encode(&reference);
         assert_eq!(same.len(), 6 * 8 * 16);
         assert!(same[3 * 128..].iter().all(|&v| v == 0.0));
@@ -217,14 +281,64 @@ mod tests {
 
     #[test]
     fn a_missing_reference_is_an_error_only_when_needed() {
-        assert!(InputEncoder::new(InputChannels::Rgb, [8, 8], None).is_ok());
-        let e = InputEncoder::new(InputChannels::RgbDifference, [8, 8], None).unwrap_err().to_string();
+        assert!(InputEncoder::new(InputEncoding::new(InputChannels::Rgb), [8, 8], None).is_ok());
+        let e =
+            InputEncoder::new(InputEncoding::new(InputChannels::RgbDifference), [8, 8], None).unwrap_err().to_string();
         assert!(e.contains("reference frame"), "{e}");
         for c in [InputChannels::Rgb, InputChannels::RgbDifference] {
-            assert_eq!(InputChannels::from_encoding(c.encoding()), Some(c));
             assert_eq!(c.name().parse::<InputChannels>(), Ok(c));
         }
         let e = "bgr".parse::<InputChannels>().unwrap_err().to_string();
         assert!(e.contains("rgb, rgb-difference"), "{e}");
+    }
+
+    #[test]
+    fn the_encoding_text_round_trips_and_reads_the_texts_bundles_were_written_with() {
+        // Bundles written before the gain was fitted say 4 in so many words.
+        let old = InputEncoding::parse("rgb/255,4*(rgb-reference)/255").unwrap();
+        assert_eq!(old, InputEncoding::new(InputChannels::RgbDifference));
+        assert_eq!(InputEncoding::parse("rgb/255"), Some(InputEncoding::new(InputChannels::Rgb)));
+        for gain in [1.0, 4.37, 12.5, 64.0] {
+            let e = InputEncoding { channels: InputChannels::RgbDifference, difference_gain: gain };
+            assert_eq!(InputEncoding::parse(&e.text()), Some(e), "{}", e.text());
+        }
+        for bad in [
+            "bgr/255",
+            "rgb/255,",
+            "rgb/255,nan*(rgb-reference)/255",
+            "rgb/255,inf*(rgb-reference)/255",
+            "rgb/255,0*(rgb-reference)/255",
+            "rgb/255,-4*(rgb-reference)/255",
+            "rgb/255,65*(rgb-reference)/255",
+            "rgb/255,4*(rgb-reference)",
+        ] {
+            assert_eq!(InputEncoding::parse(bad), None, "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_unit_whose_contact_changes_its_frame_less_gets_a_larger_gain() {
+        let d = InputChannels::RgbDifference;
+        // The target over the change, to two decimals.
+        assert_eq!(InputEncoding::fitted(d, Some(0.0225)).difference_gain, 4.0);
+        assert_eq!(InputEncoding::fitted(d, Some(0.01)).difference_gain, 9.0);
+        assert_eq!(InputEncoding::fitted(d, Some(0.07)).difference_gain, 1.29);
+        // Halving the change doubles the encoded difference's gain: the product stays the target.
+        for change in [0.004, 0.0093, 0.02] {
+            let g = InputEncoding::fitted(d, Some(change)).difference_gain as f64;
+            assert!((g * change - DIFFERENCE_TARGET as f64).abs() < 0.005 * change, "{change}: {g}");
+        }
+        // Nothing measured, or nonsense: the default; extremes: the range's ends.
+        for nothing in [None, Some(0.0), Some(f64::NAN), Some(-1.0)] {
+            assert_eq!(InputEncoding::fitted(d, nothing).difference_gain, DIFFERENCE_GAIN, "{nothing:?}");
+        }
+        assert_eq!(InputEncoding::fitted(d, Some(1e-6)).difference_gain, DIFFERENCE_GAIN_RANGE[1]);
+        assert_eq!(InputEncoding::fitted(d, Some(0.5)).difference_gain, DIFFERENCE_GAIN_RANGE[0]);
+        // The encoder applies the gain it was given.
+        let reference = uniform([100, 100, 100]);
+        let e = InputEncoding { channels: d, difference_gain: 10.0 };
+        let x = InputEncoder::new(e, [4, 4], Some(&reference)).unwrap().encode(&uniform([110, 100, 100]));
+        assert!((x[3 * 16] - 10.0 * 10.0 / 255.0).abs() < 1e-6);
+        assert_eq!(InputEncoder::new(e, [4, 4], Some(&reference)).unwrap().encoding(), e);
     }
 }

@@ -25,7 +25,7 @@ pub mod scale;
 pub mod tensor_file;
 pub mod torch;
 
-pub use input::{InputChannels, InputEncoder};
+pub use input::{InputChannels, InputEncoder, InputEncoding};
 pub use loss::{DepthLoss, DepthLossConfig};
 pub use network::{
     Activation, ConfigError, Decoder, DenseBlock, DenseDepth, DenseDepthConfig, DenseLayer, DenseNetConfig,

@@ -15,7 +15,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use formats::SplitMix64;
 use formats::dataset::{Manifest, SampleRecord, Split};
 use image::RgbImage;
-use model::{DenseDepthConfig, DepthScale, InputChannels, InputEncoder};
+use model::{DenseDepthConfig, DepthScale, InputChannels, InputEncoder, InputEncoding};
 use sensor::{DepthMap, Sensor};
 
 /// A bad sample: the file and what is wrong with it.
@@ -196,7 +196,7 @@ impl DepthDataset {
                 dir: dir.clone(),
                 mask: Arc::new(output_mask(&sensor, output_hw)),
                 reference: Some(dir.join("unit/reference.png")).filter(|p| p.is_file()),
-                encoder: InputEncoder::new(InputChannels::Rgb, input_hw, None)?,
+                encoder: InputEncoder::new(InputEncoding::new(InputChannels::Rgb), input_hw, None)?,
                 sensor,
             });
         }
@@ -215,7 +215,9 @@ impl DepthDataset {
     }
 
     /// Items for `model`: its input channels and output size. The reference difference reads
-    /// each folder's `unit/reference.png`, which must then be there.
+    /// each folder's `unit/reference.png`, which must then be there, at the gain fitted to how
+    /// much contact changes that folder's train frames ([`InputEncoding::fitted`]): each unit's
+    /// own, whichever split this is.
     pub fn set_model(&mut self, model: &DenseDepthConfig) -> anyhow::Result<()> {
         self.output_hw = model.output_hw(self.input_hw);
         for unit in &mut self.units {
@@ -228,7 +230,14 @@ impl DepthDataset {
                 ),
                 (_, false) => None,
             };
-            unit.encoder = InputEncoder::new(model.input, self.input_hw, reference.as_ref())?;
+            let encoding = match &reference {
+                Some(r) => InputEncoding::fitted(
+                    model.input,
+                    crate::contrast::contact_change(&unit.dir, &unit.sensor, self.input_hw, r)?,
+                ),
+                None => InputEncoding::new(model.input),
+            };
+            unit.encoder = InputEncoder::new(encoding, self.input_hw, reference.as_ref())?;
             unit.mask = Arc::new(output_mask(&unit.sensor, self.output_hw));
         }
         self.forget_decoded();
@@ -257,6 +266,11 @@ impl DepthDataset {
     /// The first folder.
     pub fn dir(&self) -> &Path {
         &self.units[0].dir
+    }
+
+    /// How the first folder's unit's crops are encoded (the bundle's `input_encoding`).
+    pub fn encoding(&self) -> InputEncoding {
+        self.units[0].encoder.encoding()
     }
 
     /// The first folder's unit's no-contact image, if it has one.
@@ -317,7 +331,7 @@ impl DepthDataset {
             Some(rel) if unit.encoder.channels().needs_reference() => {
                 let path = unit.dir.join(rel);
                 let reference = sensor::frame::read_reference(&path, crop)?;
-                own_encoder = InputEncoder::new(unit.encoder.channels(), self.input_hw, Some(&reference))
+                own_encoder = InputEncoder::new(unit.encoder.encoding(), self.input_hw, Some(&reference))
                     .map_err(|e| bad(&path, e))?;
                 &own_encoder
             }

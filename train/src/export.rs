@@ -93,6 +93,7 @@ pub fn export_net_with(
     let file = BundleFile {
         safetensors_keys: keys,
         contact_gate,
+        input_encoding: test.encoding().text(),
         training: Some(TrainingRecord::Trained(Trained {
             data: state.config.data.clone(),
             epochs: state.epoch,

@@ -95,6 +95,9 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
     train.vary_look = config.vary_look;
     train.set_model(&start.model_config)?;
     val.set_model(&start.model_config)?;
+    if start.model_config.input.needs_reference() {
+        eprintln!("input: {} (the difference's gain fitted to the unit's contact frames)", train.encoding().text());
+    }
     // The cache's budget shared by the two splits as their samples are.
     let budget = options.decoded_cache_mb.saturating_mul(1 << 20);
     let train_share = budget as f64 * train.len() as f64 / (train.len() + val.len()).max(1) as f64;

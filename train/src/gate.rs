@@ -61,7 +61,7 @@ pub fn fit_gate(data: &Path, skip_bad: bool) -> Result<Option<GateRecord>> {
 
 /// A frame that was read: `None` where it cannot be decoded and `skip_bad` leaves it out; a
 /// failing read is an error either way.
-fn readable<T>(read: Result<T, sensor::frame::FrameError>, skip_bad: bool) -> Result<Option<T>> {
+pub(crate) fn readable<T>(read: Result<T, sensor::frame::FrameError>, skip_bad: bool) -> Result<Option<T>> {
     match read {
         Ok(v) => Ok(Some(v)),
         Err(e @ sensor::frame::FrameError::Io { .. }) => Err(e.into()),

@@ -5,6 +5,7 @@
 
 pub mod checkpoint;
 mod config;
+mod contrast;
 pub mod data;
 pub mod export;
 mod fit;

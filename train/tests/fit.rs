@@ -171,7 +171,9 @@ fn a_reference_difference_full_resolution_network_trains_and_exports() {
     train::export::export_net(&fitted.net, &fitted.state, &bundle, &[]).unwrap();
     let (loaded, file) = model::bundle::load_bundle(&bundle, &device).unwrap();
     assert_eq!(file.model, model_config);
-    assert_eq!(file.input_encoding, model::InputChannels::RgbDifference.encoding());
+    // The bundle reads crops as training did: the gain fitted to the unit's contact frames.
+    assert_eq!(file.encoding().unwrap(), set.encoding());
+    assert_eq!(set.encoding().channels, model::InputChannels::RgbDifference);
     let x = Tensor::<4>::random([1, 6, 64, 64], Distribution::Uniform(0.0, 1.0), &device);
     let out = loaded.forward(x);
     assert_eq!(out.dims(), [1, 1, 64, 64]);
@@ -479,15 +481,11 @@ fn a_varied_look_changes_frame_and_reference_alike() {
     let (rgb, difference) = plain.split_at(3 * per);
     let mut want_rgb = rgb.to_vec();
     look.apply(&mut want_rgb);
-    let mut reference: Vec<f32> =
-        rgb.iter().zip(difference).map(|(v, d)| v - d / model::input::DIFFERENCE_GAIN).collect();
+    let gain = set.encoding().difference_gain;
+    let mut reference: Vec<f32> = rgb.iter().zip(difference).map(|(v, d)| v - d / gain).collect();
     look.apply(&mut reference);
     for (k, &got) in looked.iter().enumerate() {
-        let want = if k < 3 * per {
-            want_rgb[k]
-        } else {
-            model::input::DIFFERENCE_GAIN * (want_rgb[k - 3 * per] - reference[k - 3 * per])
-        };
+        let want = if k < 3 * per { want_rgb[k] } else { gain * (want_rgb[k - 3 * per] - reference[k - 3 * per]) };
         assert!((got - want).abs() < 1e-4, "value {k}: {got} against {want}");
     }
     assert!(looked.iter().zip(&plain).filter(|(a, b)| a != b).count() > per, "the look changed the frame");
@@ -524,8 +522,7 @@ fn samples_under_random_looks_are_read_against_their_own_untouched_frames() {
     let mut set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
     set.set_model(&model_config).unwrap();
     let unit_reference = sensor::frame::read(&data.join("unit/reference.png")).unwrap();
-    let against_unit =
-        model::InputEncoder::new(model::InputChannels::RgbDifference, [64, 64], Some(&unit_reference)).unwrap();
+    let against_unit = model::InputEncoder::new(set.encoding(), [64, 64], Some(&unit_reference)).unwrap();
     let per = 64 * 64;
     let mean_abs = |v: &[f32]| v.iter().map(|x| x.abs() as f64).sum::<f64>() / v.len() as f64;
     let mut lifted = 0;
@@ -594,4 +591,76 @@ fn a_run_still_training_is_not_exported() {
     assert!(e.contains("another process") && !out.exists(), "{e}");
     drop(held);
     train::export::export_run(&run, &out, &device, model::bundle::SafetensorsKeys::Burn).unwrap();
+}
+
+/// Two gels that differ only in how strongly contact shades them: each frame's change from the
+/// reference `q` in one and `2 q` in the other (both built from one generated unit, on a
+/// reference compressed to 96..159 so that neither clips). The stronger one's difference gain
+/// comes out half as large, and the network reads both units' contact at the same scale.
+#[test]
+fn a_gel_that_changes_more_under_contact_gets_a_smaller_gain_and_reads_the_same() {
+    let tmp = tempfile::tempdir().unwrap();
+    let source = tmp.path().join("source");
+    unit_dataset(&source, 3, 16);
+    let reference = sensor::frame::read(&source.join("unit/reference.png")).unwrap();
+    let compressed = |r: u8| 96 + r as i32 / 4;
+    let gel = |dir: &Path, strength: i32| {
+        copy_dir(&source, dir);
+        let base = image::RgbImage::from_fn(reference.width(), reference.height(), |x, y| {
+            image::Rgb(reference.get_pixel(x, y).0.map(|r| compressed(r) as u8))
+        });
+        base.save(dir.join("unit/reference.png")).unwrap();
+        let mut manifest = std::fs::read_to_string(dir.join("manifest.json")).unwrap();
+        for record in formats::dataset::Manifest::load(&source).unwrap().samples {
+            let rel = record.image.unwrap();
+            let frame = sensor::frame::read(&source.join(&rel)).unwrap();
+            let shaded = image::RgbImage::from_fn(frame.width(), frame.height(), |x, y| {
+                let (f, r) = (frame.get_pixel(x, y).0, reference.get_pixel(x, y).0);
+                image::Rgb(std::array::from_fn(|c| {
+                    let q = (f[c] as i32 - r[c] as i32) / 2;
+                    (compressed(r[c]) + strength * q).clamp(0, 255) as u8
+                }))
+            });
+            // Lossless, whatever the unit streams.
+            let png = Path::new(&rel).with_extension("png").to_string_lossy().into_owned();
+            shaded.save(dir.join(&png)).unwrap();
+            manifest = manifest.replace(&format!("\"{rel}\""), &format!("\"{png}\""));
+        }
+        std::fs::write(dir.join("manifest.json"), manifest).unwrap();
+        let mut set = train::data::DepthDataset::open(dir, None, [64, 64]).unwrap();
+        set.set_model(&difference_full_resolution()).unwrap();
+        set
+    };
+    let (weak, strong) = (gel(&tmp.path().join("weak"), 1), gel(&tmp.path().join("strong"), 2));
+    let (gw, gs) = (weak.encoding().difference_gain, strong.encoding().difference_gain);
+    assert!((gw / gs - 2.0).abs() < 0.1, "gains {gw} and {gs}: the stronger gel's should be half");
+    // The difference channels where contact is labelled: the same size in both (elsewhere the
+    // resized frames' rounding, times each unit's gain, is all there is).
+    let per = 64 * 64;
+    let size = |set: &train::data::DepthDataset| -> f64 {
+        let touched = set.scale.to_net(sensor::CONTACT_THRESHOLD_MM);
+        let mut sum = 0.0;
+        for i in 0..set.len() {
+            let item = set.load(i, None).unwrap();
+            for k in (0..per).filter(|&k| item.depth[k] > touched) {
+                sum += (0..3).map(|c| item.image[(3 + c) * per + k].abs() as f64).sum::<f64>();
+            }
+        }
+        sum
+    };
+    let (dw, ds) = (size(&weak), size(&strong));
+    assert!((ds / dw - 1.0).abs() < 0.05, "difference channels {dw} against {ds}");
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), &target).unwrap();
+        }
+    }
 }
