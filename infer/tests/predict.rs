@@ -438,8 +438,23 @@ fn a_reference_difference_bundle_reads_its_reference_and_predicts_at_full_resolu
     let (_, frame) = pressed(&renderer);
     let out = predictor.forward(predictor.input(std::slice::from_ref(&frame)).unwrap());
     assert_eq!(out.dims(), [1, 1, 64, 64]);
-    let depth = predictor.predict_network(&[frame]).unwrap().remove(0);
+    let depth = predictor.predict_network(std::slice::from_ref(&frame)).unwrap().remove(0);
     assert_eq!(depth.size_px, unit.sensor.crop_size_px);
+
+    // The difference is read at the gain the bundle records (the unit's, fitted in training).
+    let fitted = model::InputEncoding { channels: model::InputChannels::RgbDifference, difference_gain: 10.0 };
+    let strong = tmp.path().join("strong");
+    let file10 = model::bundle::BundleFile { input_encoding: fitted.text(), ..file.clone() };
+    write_bundle(&strong, &net, &file10, Some(&sensor::frame::encode_png_rgb(&reference_frame)), &[]).unwrap();
+    let difference = |p: &Predictor| -> Vec<f32> {
+        let v = p.input(std::slice::from_ref(&frame)).unwrap().into_data().try_to_vec::<f32>().unwrap();
+        v[3 * 64 * 64..].to_vec()
+    };
+    let (at4, at10) = (difference(&predictor), difference(&Predictor::load(&strong, &device).unwrap()));
+    assert!(at4.iter().any(|&v| v.abs() > 0.01), "the pressed frame differs from the reference");
+    for (a, b) in at4.iter().zip(&at10) {
+        assert!((b - 2.5 * a).abs() < 1e-5, "{b} against 2.5 x {a}");
+    }
 
     // A bundle whose file names no reference image is refused on loading, by name.
     let json = dir.join(model::bundle::BUNDLE_JSON);

@@ -1,8 +1,8 @@
 //! How much contact changes a unit's frames: the measurement its reference difference's gain is
-//! fitted to ([`model::InputEncoding::fitted`]). Gels differ: the project's renderer's units
-//! change by about a hundredth of the range where they are pressed, an independently modelled
-//! gel with softer shading by half that, and a fixed gain would hand the network one unit's
-//! contact at half the size of another's.
+//! fitted to ([`model::InputEncoding::fitted`]). Gels differ: where they are pressed, the
+//! project's renderer's units change by 0.019 to 0.029 of the range on average, the
+//! independently modelled gels (`gelcam`) by 0.007 to 0.017 (BENCHMARKS.md), and a fixed gain
+//! would hand the network one unit's contact at a third of the size of another's.
 
 use std::path::Path;
 
@@ -14,8 +14,9 @@ use sensor::{CONTACT_THRESHOLD_MM, DepthMap, Sensor};
 
 use crate::gate::readable;
 
-/// Train frames with contact read for the measurement, spread evenly over the split: enough
-/// for its mean to settle to about a percent, few enough to cost under a second.
+/// Train frames with contact read for the measurement, spread evenly over the split, so that
+/// it costs under a second (0.25 to 0.5 s at the quickstart's 128x128 on this project's 2-core
+/// machine).
 pub(crate) const GAIN_SAMPLES: usize = 64;
 
 /// Sum and count of the per-pixel change over one frame's labelled contact pixels.
