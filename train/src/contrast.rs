@@ -6,13 +6,13 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use formats::dataset::{Manifest, Split};
 use image::RgbImage;
 use rayon::prelude::*;
-use sensor::{CONTACT_THRESHOLD_MM, DepthMap, Sensor};
+use sensor::{CONTACT_THRESHOLD_MM, Sensor};
 
-use crate::gate::readable;
+use crate::gate::read_labelled;
 
 /// Train frames with contact read for the measurement, spread evenly over the split, so that
 /// it costs under a second (0.25 to 0.5 s at the quickstart's 128x128 on this project's 2-core
@@ -40,26 +40,13 @@ pub(crate) fn contact_change(dir: &Path, sensor: &Sensor, hw: [usize; 2], refere
     let tallies: Vec<Result<Option<Tally>>> = picked
         .par_iter()
         .map(|s| {
-            let Some(frame) =
-                readable(sensor::frame::read_crop(&dir.join(s.image.as_ref().expect("filtered")), sensor), true)?
-            else {
-                return Ok(None);
-            };
-            let own = match &s.reference {
-                Some(rel) => match readable(sensor::frame::read_reference(&dir.join(rel), crop), true)? {
-                    Some(own) => Some(model::input::resized(&own, hw)),
-                    None => return Ok(None),
-                },
-                None => None,
-            };
-            let depth_path = dir.join(&s.depth);
-            let bytes = std::fs::read(&depth_path).with_context(|| depth_path.display().to_string())?;
-            let Ok(depth) = DepthMap::decode_png_um(&depth_path, &bytes) else { return Ok(None) };
-            if depth.size_px != crop {
+            let Some(l) = read_labelled(dir, s, sensor, true)? else { return Ok(None) };
+            if l.depth.size_px != crop {
                 return Ok(None);
             }
-            let depth = sensor::resample::resize_plane(&depth.depth_mm, [crop as usize; 2], hw);
-            let frame = model::input::resized(&frame, hw);
+            let own = l.own_reference.map(|own| model::input::resized(&own, hw));
+            let depth = sensor::resample::resize_plane(&l.depth.depth_mm, [crop as usize; 2], hw);
+            let frame = model::input::resized(&l.frame, hw);
             Ok(Some(tally(&frame, own.as_ref().unwrap_or(&unit_reference), &depth, &inside)))
         })
         .collect();

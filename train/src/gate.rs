@@ -4,11 +4,12 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use formats::dataset::{Manifest, Split};
+use formats::dataset::{Manifest, SampleRecord, Split};
+use image::RgbImage;
 use model::bundle::GateRecord;
 use rayon::prelude::*;
-use sensor::DepthMap;
 use sensor::gate::{GateFrame, Tally, fit};
+use sensor::{DepthMap, Sensor};
 
 /// The gate for the dataset `data` (its train split) with its tally on each split; `None`
 /// where the dataset has no reference frame or no train frame with contact (no gate: the
@@ -27,28 +28,12 @@ pub fn fit_gate(data: &Path, skip_bad: bool) -> Result<Option<GateRecord>> {
         let records: Vec<_> = manifest.split(Some(split)).collect();
         let measured: Vec<Result<Option<GateFrame>>> = records
             .par_iter()
-            .filter_map(|s| s.image.as_ref().map(|image| (s, image)))
-            .map(|(s, image)| {
-                let Some(frame) = readable(sensor::frame::read_crop(&data.join(image), sensor), skip_bad)? else {
-                    return Ok(None);
-                };
-                let depth_path = data.join(&s.depth);
-                let bytes = std::fs::read(&depth_path).with_context(|| format!("{}", depth_path.display()))?;
-                let depth = match DepthMap::decode_png_um(&depth_path, &bytes) {
-                    Ok(d) => d,
-                    Err(_) if skip_bad => return Ok(None),
-                    Err(e) => return Err(e.into()),
-                };
+            .filter(|s| s.image.is_some())
+            .map(|s| {
+                let Some(l) = read_labelled(data, s, sensor, skip_bad)? else { return Ok(None) };
                 // A sample under its own look is gated against its own untouched frame.
-                let own = match &s.reference {
-                    Some(rel) => {
-                        let read = sensor::frame::read_reference(&data.join(rel), sensor.crop_size_px);
-                        let Some(own) = readable(read, skip_bad)? else { return Ok(None) };
-                        Some(own)
-                    }
-                    None => None,
-                };
-                Ok(Some(GateFrame::labelled(&frame, own.as_ref().unwrap_or(&reference), &mask, &depth)))
+                let own = l.own_reference.as_ref().unwrap_or(&reference);
+                Ok(Some(GateFrame::labelled(&l.frame, own, &mask, &l.depth)))
             })
             .collect();
         Ok(measured.into_iter().collect::<Result<Vec<_>>>()?.into_iter().flatten().collect())
@@ -57,6 +42,46 @@ pub fn fit_gate(data: &Path, skip_bad: bool) -> Result<Option<GateRecord>> {
     let Some(gate) = fit(&train) else { return Ok(None) };
     let test = measure(Split::Test)?;
     Ok(Some(GateRecord { gate, train: Tally::of(&gate, &train), test: Tally::of(&gate, &test) }))
+}
+
+/// A labelled sample as read from its dataset: its crop, its own untouched frame where it was
+/// rendered under its own look, and its depth map.
+pub(crate) struct Labelled {
+    pub(crate) frame: RgbImage,
+    pub(crate) own_reference: Option<RgbImage>,
+    pub(crate) depth: DepthMap,
+}
+
+/// Sample `s` (which has an image) of the dataset in `data`: `None` where one of its files
+/// cannot be decoded and `skip_bad` leaves it out; a failing read is an error either way.
+pub(crate) fn read_labelled(
+    data: &Path,
+    s: &SampleRecord,
+    sensor: &Sensor,
+    skip_bad: bool,
+) -> Result<Option<Labelled>> {
+    let image = s.image.as_ref().context("the sample has no camera image")?;
+    let Some(frame) = readable(sensor::frame::read_crop(&data.join(image), sensor), skip_bad)? else {
+        return Ok(None);
+    };
+    let depth_path = data.join(&s.depth);
+    let bytes = std::fs::read(&depth_path).with_context(|| format!("{}", depth_path.display()))?;
+    let depth = match DepthMap::decode_png_um(&depth_path, &bytes) {
+        Ok(d) => d,
+        Err(_) if skip_bad => return Ok(None),
+        Err(e) => return Err(e.into()),
+    };
+    let own_reference = match &s.reference {
+        Some(rel) => {
+            let Some(own) = readable(sensor::frame::read_reference(&data.join(rel), sensor.crop_size_px), skip_bad)?
+            else {
+                return Ok(None);
+            };
+            Some(own)
+        }
+        None => None,
+    };
+    Ok(Some(Labelled { frame, own_reference, depth }))
 }
 
 /// A frame that was read: `None` where it cannot be decoded and `skip_bad` leaves it out; a
