@@ -13,6 +13,10 @@ use model::upsample_mode_for;
 use model::{DenseDepthConfig, DenseNetConfig, DepthLossConfig};
 use model::{Upsample, upsample_bilinear};
 
+/// The wgpu device's random generator is one per process: tests that seed it and draw from it
+/// take this lock, or a test running beside them moves the draws (and the initial weights).
+static RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 #[test]
 fn upsample_on_wgpu_matches_interpolate_and_trains() {
     let gpu = model::backend::wgpu_device().autodiff();
@@ -44,9 +48,13 @@ fn network_on_wgpu_agrees_with_flex_and_a_training_step_is_finite() {
     assert!(rel <= 1e-3, "wgpu vs flex: max_abs_err={abs} max_rel_err={rel}");
 
     let train = gpu.autodiff();
-    let model = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&train);
-    let images = Tensor::<4>::random([1, 3, 64, 64], Distribution::Uniform(0.0, 1.0), &train);
-    let target = Tensor::<4>::random([1, 1, 32, 32], Distribution::Uniform(10.0, 1000.0), &train);
+    let (model, images, target) = {
+        let _rng = RNG.lock().unwrap_or_else(|e| e.into_inner());
+        let model = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&train);
+        let images = Tensor::<4>::random([1, 3, 64, 64], Distribution::Uniform(0.0, 1.0), &train);
+        let target = Tensor::<4>::random([1, 1, 32, 32], Distribution::Uniform(10.0, 1000.0), &train);
+        (model, images, target)
+    };
     let loss = DepthLossConfig::new().forward(model.forward(images), target).total;
     assert!(to_vec(loss.clone())[0].is_finite());
     let grads = loss.backward();
@@ -58,20 +66,32 @@ fn network_on_wgpu_agrees_with_flex_and_a_training_step_is_finite() {
 fn a_few_adam_steps_on_wgpu_lower_the_loss() {
     use burn::optim::{AdamConfig, GradientsParams};
     let train = model::backend::wgpu_device().autodiff();
-    train.seed(3);
-    let mut net = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&train);
+    let mut net = {
+        let _rng = RNG.lock().unwrap_or_else(|e| e.into_inner());
+        train.seed(3);
+        DenseDepthConfig::new(DenseNetConfig::tiny()).init(&train)
+    };
     let image: Vec<f32> = (0..2 * 3 * 64 * 64).map(|i| ((i * 131) % 997) as f32 / 997.0).collect();
-    let depth: Vec<f32> = (0..2 * 32 * 32).map(|i| 10.0 + ((i * 17) % 300) as f32).collect();
+    // A smooth depth map in the loss' range (10..1000), so that a few steps can reach towards it.
+    let depth: Vec<f32> = (0..2 * 32 * 32)
+        .map(|i| {
+            let (b, y, x) = (i / 1024, (i / 32) % 32, i % 32);
+            200.0 + 100.0 * b as f32 + 80.0 * (x as f32 / 6.0).sin() * (y as f32 / 9.0).cos()
+        })
+        .collect();
     let images = Tensor::<4>::from_data(TensorData::new(image, [2, 3, 64, 64]), &train);
     let target = Tensor::<4>::from_data(TensorData::new(depth, [2, 1, 32, 32]), &train);
     let mut optim = AdamConfig::new().init();
     let mut losses = Vec::new();
+    // A small learning rate: Adam's first steps move every weight by about the rate whatever its
+    // gradient, and at 1e-2 the tiny network overshot on one initialisation (loss 129.6 -> 155.8).
     for _ in 0..6 {
         let loss = DepthLossConfig::new().forward(net.forward(images.clone()), target.clone()).total;
         losses.push(to_vec(loss.clone())[0]);
         let grads = GradientsParams::from_grads(loss.backward(), &net);
-        net = optim.step(1e-2, net, grads);
+        net = optim.step(1e-3, net, grads);
     }
     assert!(losses.iter().all(|l| l.is_finite()), "{losses:?}");
+    // Measured here over seven seeds: it fell at every step on each; the assertion asks less.
     assert!(losses[5] < losses[0], "the loss must fall on a fixed batch: {losses:?}");
 }
