@@ -5,11 +5,11 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use sensor::Sensor;
+use sensor::{DepthMap, PressureMap, Sensor};
 
 use formats::dataset::{
     DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, LIFTED_Z_TRAVEL_MM, Manifest, SampleRecord,
-    SplitSummary, sample_name,
+    SplitSummary, Wrench, sample_name,
 };
 use formats::fs::{write_atomic, write_atomic_unsynced};
 use formats::{SplitMix64, write_json};
@@ -17,6 +17,7 @@ use sensor::frame::encode_png_rgb;
 
 use crate::kit::{Kit, Split, Trial};
 use crate::looks::random_look;
+use crate::mechanics::{Dome, GridConfig, Material, force_label};
 use crate::raycast::{RayBundle, RayCaster, Skipping};
 use crate::render::Renderer;
 use crate::resumable;
@@ -155,8 +156,7 @@ impl Generator<'_> {
             0..self.params.count,
             |id| out.join(format!("samples/{}.json", sample_name(id))),
             |r: &SampleRecord| {
-                let mut files: Vec<PathBuf> =
-                    std::iter::once(&r.depth).chain(&r.image).chain(&r.reference).map(|f| out.join(f)).collect();
+                let mut files: Vec<PathBuf> = r.files().map(|f| out.join(f)).collect();
                 if self.params.depth_u8 {
                     files.push(out.join(format!("depth_u8/{}.png", sample_name(r.id))));
                 }
@@ -166,13 +166,15 @@ impl Generator<'_> {
                 r.id == id
                     && r.image.is_some() == self.renderer.is_some()
                     && r.reference.is_some() == (self.renderer.is_some() && self.params.random_looks)
+                    && r.pressure.is_some() == self.params.force_labels
             },
         )?;
         let resumed = done.len();
         let todo: Vec<u32> = (0..self.params.count).filter(|id| !done.contains_key(id)).collect();
         let rays = RayBundle::new(self.sensor);
         let mask = self.sensor.valid_mask();
-        let fresh = resumable::make_all(&todo, "generating", |id| self.make_sample(id, &rays, &mask))?;
+        let dome = self.params.force_labels.then(|| Dome::new(self.sensor, &rays));
+        let fresh = resumable::make_all(&todo, "generating", |id| self.make_sample(id, &rays, &mask, dome.as_ref()))?;
         let mut records = done;
         let generated = fresh.len();
         records.extend(fresh.into_iter().map(|r| (r.id, r)));
@@ -193,7 +195,7 @@ impl Generator<'_> {
         Ok(RunReport { manifest, generated, resumed, seconds: start.elapsed().as_secs_f64() })
     }
 
-    fn make_sample(&self, id: u32, rays: &RayBundle, mask: &[bool]) -> Result<SampleRecord> {
+    fn make_sample(&self, id: u32, rays: &RayBundle, mask: &[bool], dome: Option<&Dome>) -> Result<SampleRecord> {
         let (trial, pose) = draw_sample(self.kit, &self.params, id);
         let scene = build_scene(self.kit, trial, pose)?;
         let caster = RayCaster::new(&scene.part_refs(), self.sensor.radius_mm, self.skipping);
@@ -207,6 +209,14 @@ impl Generator<'_> {
             let bytes = depth.to_png_u8(self.sensor.max_depth_mm as f32);
             write_atomic_unsynced(&self.out.join(format!("depth_u8/{name}.png")), &bytes)?;
         }
+        let (pressure, wrench) = match dome {
+            Some(dome) => {
+                let material = self.renderer.map_or(Material::PAPER, |r| r.unit().elastomer.material());
+                let (rel, wrench) = write_force_label(&self.out, &name, dome, &depth, &material)?;
+                (Some(rel), Some(wrench))
+            }
+            None => (None, None),
+        };
         let (mut image, mut reference) = (None, None);
         if let Some(renderer) = self.renderer {
             let styled;
@@ -243,6 +253,8 @@ impl Generator<'_> {
             reference,
             stats: DepthStats::of(&depth, mask),
             cast,
+            pressure,
+            wrench,
             capture: None,
         };
         let json = serde_json::to_vec_pretty(&record).expect("record serialises");
@@ -256,6 +268,9 @@ impl Generator<'_> {
         let mut subs = vec!["samples", "depth"];
         if self.params.depth_u8 {
             subs.push("depth_u8");
+        }
+        if self.params.force_labels {
+            subs.push("pressure");
         }
         if self.renderer.is_some() {
             subs.extend(["images", "unit"]);
@@ -285,6 +300,23 @@ impl Generator<'_> {
         }
         Ok(claim)
     }
+}
+
+/// Solves the contact `depth` shows and writes its pressure map as `pressure/NAME.png` under
+/// `out`; returns the file (relative to `out`) and the wrench for the sample's record.
+pub fn write_force_label(
+    out: &Path,
+    name: &str,
+    dome: &Dome,
+    depth: &DepthMap,
+    material: &Material,
+) -> Result<(String, Wrench)> {
+    let label = force_label(dome, depth, material, &GridConfig::default())
+        .with_context(|| format!("sample {name}'s contact"))?;
+    let rel = format!("pressure/{name}.png");
+    let map = PressureMap { size_px: depth.size_px, pressure_kpa: label.pressure_kpa };
+    write_atomic_unsynced(&out.join(&rel), &map.to_png())?;
+    Ok((rel, label.wrench))
 }
 
 /// The unit's description, its true geometry and its no-contact image.

@@ -28,8 +28,9 @@ use sensor::gate::GateFrame;
 use sensor::{DepthMap, Sensor};
 use serde::{Deserialize, Serialize};
 
-use crate::generate::build_scene;
+use crate::generate::{build_scene, write_force_label};
 use crate::kit::{Kit, Split, Trial};
+use crate::mechanics::{Dome, Material};
 use crate::raycast::{RayBundle, RayCaster, Skipping};
 use crate::resumable;
 use crate::touch::{Z_ZERO_COLUMN, ZFrom, ZReading, first_touch_mm};
@@ -57,6 +58,9 @@ pub struct Labeller<'a> {
     pub on_bad_row: OnBadRow,
     /// What the log's z measures (default: travel from the seated pose).
     pub z: ZReading,
+    /// The elastomer whose contact model gives each sample's force labels (pressure map and
+    /// wrench); `None`: depth labels only.
+    pub force: Option<Material>,
 }
 
 /// What a finished labelling reports.
@@ -161,7 +165,8 @@ impl Labeller<'_> {
         };
         // The log may grow (or change) between runs: what the folder is fixed to is the session,
         // the kit and the sensor, and each row is checked by its digest.
-        let source = LabelSource { session: params.session.clone(), kit: params.kit.clone(), z: self.z };
+        let source =
+            LabelSource { session: params.session.clone(), kit: params.kit.clone(), z: self.z, force: self.force };
         let file = LabelFile { format_version: DATASET_FORMAT_VERSION, sensor: self.sensor.clone(), params: source };
         let kit = std::path::Path::new(&self.kit.source);
         let mut inputs = vec![self.session.as_path()];
@@ -170,7 +175,7 @@ impl Labeller<'_> {
             &self.out,
             formats::output::OutputKind::Dataset,
             &inputs,
-            &["samples", "depth", "images", "unit"],
+            &["samples", "depth", "images", "unit", "pressure"],
             LABEL_JSON,
             &file,
             "a labelled session",
@@ -183,8 +188,8 @@ impl Labeller<'_> {
             "samples",
             jobs.iter().map(|j| j.id),
             |id| out.join(format!("samples/{}.json", sample_name(id))),
-            |r: &SampleRecord| std::iter::once(&r.depth).chain(&r.image).map(|f| out.join(f)).collect(),
-            |id, r: &SampleRecord| r.id == id,
+            |r: &SampleRecord| r.files().map(|f| out.join(f)).collect(),
+            |id, r: &SampleRecord| r.id == id && r.pressure.is_some() == self.force.is_some(),
         )?;
         let by_id: BTreeMap<u32, &Job> = jobs.iter().map(|j| (j.id, j)).collect();
         // A row edited or moved, or a frame file replaced, since the earlier run: labelled again.
@@ -201,12 +206,13 @@ impl Labeller<'_> {
         let todo: Vec<&Job> = jobs.iter().filter(|j| !done.contains_key(&j.id)).collect();
         let rays = RayBundle::new(self.sensor);
         let mask = self.sensor.valid_mask();
+        let dome = self.force.map(|_| Dome::new(self.sensor, &rays));
         let ids: Vec<u32> = (0..todo.len() as u32).collect();
         // A bad row is the row's problem; a failing write (a full disk, permissions) stops the
         // run whatever --on-bad-row says.
         let outcomes = resumable::make_all(&ids, "labelling", |k| {
             let job = todo[k as usize];
-            self.label_row(job, &rays, &mask, &reference)
+            self.label_row(job, &rays, &mask, &reference, dome.as_ref())
         })?;
         let mut records = done;
         let mut labelled = 0;
@@ -221,7 +227,7 @@ impl Labeller<'_> {
         }
         // Samples of rows the log no longer has, or that are bad now, are removed: the folder
         // holds what a fresh labelling of the log as it stands writes.
-        resumable::remove_others(out, &["samples", "depth", "images"], |id| records.contains_key(&id))?;
+        resumable::remove_others(out, &["samples", "depth", "images", "pressure"], |id| records.contains_key(&id))?;
         let samples: Vec<SampleRecord> = records.into_values().collect();
         if samples.is_empty() {
             bail!("{}: no row could be labelled", log.path.display());
@@ -287,6 +293,7 @@ impl Labeller<'_> {
         rays: &RayBundle,
         mask: &[bool],
         reference: &RgbImage,
+        dome: Option<&Dome>,
     ) -> Result<Result<SampleRecord, anyhow::Error>> {
         let c = &job.capture;
         let frame_path = self.session.join(&c.frame);
@@ -313,6 +320,13 @@ impl Labeller<'_> {
         let (depth_rel, image_rel) = (format!("depth/{name}.png"), format!("images/{name}.png"));
         write_atomic_unsynced(&self.out.join(&depth_rel), &depth.to_png_um())?;
         write_atomic_unsynced(&self.out.join(&image_rel), &encode_png_rgb(&crop))?;
+        let (pressure, wrench) = match (dome, &self.force) {
+            (Some(dome), Some(material)) => {
+                let (rel, wrench) = write_force_label(&self.out, &name, dome, &depth, material)?;
+                (Some(rel), Some(wrench))
+            }
+            _ => (None, None),
+        };
         let record = SampleRecord {
             id: job.id,
             split: job.trial.split,
@@ -323,6 +337,8 @@ impl Labeller<'_> {
             reference: None,
             stats: DepthStats::of(&depth, mask),
             cast,
+            pressure,
+            wrench,
             capture: Some(CaptureInfo {
                 frame: c.frame.clone(),
                 line: c.line,
@@ -378,6 +394,9 @@ pub struct LabelSource {
     /// How the log's z is read (absent: from the seated pose).
     #[serde(default, skip_serializing_if = "ZReading::is_seated")]
     pub z: ZReading,
+    /// The elastomer the force labels are solved with (absent: no force labels).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force: Option<Material>,
 }
 
 /// The parameters file of a labelled dataset.

@@ -70,6 +70,16 @@ struct LabelArgs {
     /// column overrides it.
     #[arg(long, requires = "z_from")]
     z_zero_mm: Option<f32>,
+    /// Depth labels only: no pressure maps or wrenches.
+    #[arg(long)]
+    no_force_labels: bool,
+    /// Young's modulus of the unit's silicone (MPa) for the force labels; default: the paper's
+    /// 6.5 Shore A estimate. Measure yours (an indentation test) if force matters.
+    #[arg(long, default_value_t = dataset::mechanics::Material::PAPER.youngs_modulus_mpa)]
+    youngs_modulus_mpa: f64,
+    /// Poisson's ratio of the silicone for the force labels.
+    #[arg(long, default_value_t = dataset::mechanics::Material::PAPER.poisson_ratio)]
+    poisson_ratio: f64,
 }
 
 #[derive(clap::Args)]
@@ -198,6 +208,10 @@ struct GenerateArgs {
     /// Hemisphere radius (mm) of the default sensor or the simulated unit.
     #[arg(long, default_value_t = 25.0, conflicts_with = "sensor")]
     radius_mm: f64,
+    /// Depth labels only: no pressure maps or wrenches (by default each sample's contact is
+    /// solved with the unit's silicone, or the paper's without --unit).
+    #[arg(long)]
+    no_force_labels: bool,
 }
 
 fn generate(args: GenerateArgs) -> Result<()> {
@@ -249,6 +263,7 @@ fn generate(args: GenerateArgs) -> Result<()> {
         c_axis_deg: args.c_deg,
         image_model: formats::dataset::IMAGE_MODEL,
         random_looks: args.random_looks,
+        force_labels: !args.no_force_labels,
     };
     // Travel that presses most contact past the sensor's depth range gives depth maps that say
     // nothing there: refused with the figure, or warned about.
@@ -318,7 +333,14 @@ fn label(args: LabelArgs) -> Result<()> {
         kit: &kit,
         on_bad_row: args.on_bad_row,
         z: dataset::touch::ZReading { from: args.z_from, zero_mm: args.z_zero_mm },
+        force: (!args.no_force_labels).then_some(dataset::mechanics::Material {
+            youngs_modulus_mpa: args.youngs_modulus_mpa,
+            poisson_ratio: args.poisson_ratio,
+        }),
     };
+    if let Some(material) = &labeller.force {
+        material.validate().context("--youngs-modulus-mpa / --poisson-ratio")?;
+    }
     let report = labeller.run()?;
     for line in dataset::label::report_lines(&report) {
         println!("{line}");

@@ -13,9 +13,11 @@ use serde::{Deserialize, Serialize};
 
 use formats::SplitMix64;
 
+use crate::mechanics::Material;
+
 /// Format version of `unit.json` (2: the elastomer's drape and the camera's response, blur and
-/// compression).
-pub const UNIT_FORMAT_VERSION: u32 = 2;
+/// compression; 3: the elastomer's Young's modulus and Poisson's ratio).
+pub const UNIT_FORMAT_VERSION: u32 = 3;
 
 /// One lit LED: a point light with a soft fall-off (the LEDs sit behind a diffuser).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -47,6 +49,28 @@ pub struct Elastomer {
     /// the edge's depth; a thicker gel layer drapes farther. 0: the membrane follows the
     /// indenter exactly.
     pub drape_mm: f64,
+    /// Young's modulus (MPa) of the cured silicone; absent in older `unit.json`: the paper's
+    /// estimate ([`Material::PAPER`]). A 20:1 mix cured a little warmer or longer is stiffer.
+    #[serde(default = "paper_modulus")]
+    pub youngs_modulus_mpa: f64,
+    /// Poisson's ratio (nearly incompressible silicone); absent in older files: the paper's.
+    #[serde(default = "paper_poisson")]
+    pub poisson_ratio: f64,
+}
+
+fn paper_modulus() -> f64 {
+    Material::PAPER.youngs_modulus_mpa
+}
+
+fn paper_poisson() -> f64 {
+    Material::PAPER.poisson_ratio
+}
+
+impl Elastomer {
+    /// The material the contact model solves with.
+    pub fn material(&self) -> Material {
+        Material { youngs_modulus_mpa: self.youngs_modulus_mpa, poisson_ratio: self.poisson_ratio }
+    }
 }
 
 /// Camera response: exposure, vignetting, optics, noise and encoding (8-bit grey levels).
@@ -120,7 +144,11 @@ impl SensorUnit {
             sensor,
             leds: [led(0.0, [1.0, 0.06, 0.03]), led(120.0, [0.05, 0.9, 0.08]), led(240.0, [0.03, 0.08, 1.1])],
             coating: Coating { albedo: 0.8, specular: 0.25, shininess: 20.0 },
-            elastomer: Elastomer { drape_mm: 0.5 },
+            elastomer: Elastomer {
+                drape_mm: 0.5,
+                youngs_modulus_mpa: Material::PAPER.youngs_modulus_mpa,
+                poisson_ratio: Material::PAPER.poisson_ratio,
+            },
             camera: Camera {
                 exposure: 520.0,
                 vignetting: 0.3,
@@ -190,6 +218,9 @@ impl SensorUnit {
         cam.gamma = vary(1.0, 2.2);
         // One unit in three streams JPEG.
         cam.jpeg_quality = (vary(0.0, 1.0) < 1.0 / 3.0).then(|| vary(80.0, 95.0).round() as u8);
+        // Drawn last again (format 3): the material, within 20 % of the paper's modulus.
+        unit.elastomer.youngs_modulus_mpa = Material::PAPER.youngs_modulus_mpa * vary(0.8, 1.2);
+        unit.elastomer.poisson_ratio = vary(0.46, 0.495);
         unit
     }
 
@@ -216,6 +247,7 @@ impl SensorUnit {
         finite_nonneg("coating.albedo", self.coating.albedo)?;
         finite_nonneg("coating.specular", self.coating.specular)?;
         finite_nonneg("elastomer.drape_mm", self.elastomer.drape_mm)?;
+        self.elastomer.material().validate().map_err(|e| UnitError::Material(e.to_string()))?;
         finite_nonneg("camera.blur_px", c.blur_px)?;
         if !(c.gamma.is_finite() && (0.2..=5.0).contains(&c.gamma)) {
             return Err(UnitError::Gamma(c.gamma));
@@ -252,6 +284,8 @@ pub enum UnitError {
     LensField(f64),
     #[error("LED {0} must sit inside the dome with a positive half distance")]
     Led(usize),
+    #[error("{0}")]
+    Material(String),
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@ mod common;
 use common::files;
 
 /// The folders whose files make up a dataset here.
-const DATASET_FILES: [&str; 3] = ["", "samples", "depth"];
+const DATASET_FILES: [&str; 4] = ["", "samples", "depth", "pressure"];
 
 const BIN: &str = env!("CARGO_BIN_EXE_dataset");
 
@@ -53,9 +53,9 @@ fn killed_and_resumed_run_equals_an_uninterrupted_one() {
     assert!(fresh.status.success());
     let (fa, fb) = (files(&a, &DATASET_FILES), files(&b, &DATASET_FILES));
     assert_eq!(fa.len(), fb.len());
-    // generator.json, manifest.json, the output marker and its lock file, then a record and a
-    // depth map a sample.
-    assert_eq!(fa.len(), 4 + 2 * count as usize);
+    // generator.json, manifest.json, the output marker and its lock file, then a record, a
+    // depth map and a pressure map a sample.
+    assert_eq!(fa.len(), 4 + 3 * count as usize);
     for ((na, ca), (nb, cb)) in fa.iter().zip(&fb) {
         assert_eq!(na, nb);
         assert!(ca == cb, "{na} differs between the resumed and the uninterrupted run");
@@ -310,6 +310,55 @@ fn lifted_samples_have_no_contact_and_leave_the_others_unchanged() {
     assert!((5..=20).contains(&lifted_count), "{lifted_count} of 40 lifted at a 0.3 chance");
     let r = generate(&tmp.path().join("bad"), 3, &["--lifted-fraction", "1.5"]);
     assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("--lifted-fraction"));
+}
+
+#[test]
+fn force_labels_follow_the_depth_maps_and_can_be_left_out() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (with, without) = (tmp.path().join("with"), tmp.path().join("without"));
+    let r = generate(&with, 16, &["--lifted-fraction", "0.25"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let manifest = formats::dataset::Manifest::load(&with).unwrap();
+    let (mut pressed, mut lifted) = (0, 0);
+    for s in &manifest.samples {
+        let depth = sensor::DepthMap::load_png_um(&with.join(&s.depth)).unwrap();
+        let pressure = sensor::PressureMap::load_png(&with.join(s.pressure.as_ref().expect("a pressure map"))).unwrap();
+        let wrench = s.wrench.expect("a wrench");
+        assert_eq!(pressure.size_px, depth.size_px);
+        // Pressure only where the scene overlaps the dome; the force pushes into the sensor
+        // and, without friction, passes through the dome's centre.
+        assert!(
+            pressure.pressure_kpa.iter().zip(&depth.depth_mm).all(|(&p, &d)| p == 0.0 || d > 0.0),
+            "sample {}",
+            s.id
+        );
+        let force = wrench.force_n.iter().map(|f| f * f).sum::<f64>().sqrt();
+        let torque = wrench.torque_nmm.iter().map(|t| t * t).sum::<f64>().sqrt();
+        assert!(torque <= 1e-6 * force.max(1.0) * 25.0, "sample {}: {wrench:?}", s.id);
+        if s.stats.contact_fraction > 0.0 {
+            pressed += 1;
+            assert!(force > 0.0 && wrench.force_n[2] < 0.0, "sample {}: {wrench:?}", s.id);
+            assert!(pressure.pressure_kpa.iter().any(|&p| p > 0.0), "sample {}", s.id);
+        } else {
+            lifted += 1;
+            assert_eq!(force, 0.0, "sample {}", s.id);
+            assert!(pressure.pressure_kpa.iter().all(|&p| p == 0.0), "sample {}", s.id);
+        }
+    }
+    assert!(pressed > 0 && lifted > 0, "{pressed} pressed, {lifted} lifted");
+
+    // Left out on request: the same scenes and depth maps, no pressure maps.
+    let r = generate(&without, 16, &["--lifted-fraction", "0.25", "--no-force-labels"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let bare = formats::dataset::Manifest::load(&without).unwrap();
+    assert!(!without.join("pressure").exists());
+    for (a, b) in manifest.samples.iter().zip(&bare.samples) {
+        assert!(b.pressure.is_none() && b.wrench.is_none());
+        assert_eq!(std::fs::read(with.join(&a.depth)).unwrap(), std::fs::read(without.join(&b.depth)).unwrap());
+    }
+    // A folder made one way is not resumed the other.
+    let r = generate(&without, 16, &["--lifted-fraction", "0.25"]);
+    assert!(!r.status.success(), "resumed a folder without force labels as one with them");
 }
 
 /// A finished run resumes for any unit: the settings read back from `generator.json` equal the

@@ -13,7 +13,7 @@ mod common;
 use common::files;
 
 /// The folders whose files make up a dataset here.
-const DATASET_FILES: [&str; 5] = ["", "samples", "depth", "images", "unit"];
+const DATASET_FILES: [&str; 6] = ["", "samples", "depth", "images", "unit", "pressure"];
 
 const BIN: &str = env!("CARGO_BIN_EXE_dataset");
 
@@ -67,7 +67,12 @@ fn a_session_labelled_with_the_true_sensor_is_the_generators_dataset() {
     let mut args = vec!["generate", "--out", s(&generated)];
     args.extend(DRAWS);
     ok(dataset(&args));
-    let report = ok(label(&session, &truth(&session), &labelled, &[]));
+    // The force labels with the unit's own silicone, which a lab would have measured.
+    let unit: dataset::SensorUnit =
+        serde_json::from_slice(&std::fs::read(generated.join("unit/unit.json")).unwrap()).unwrap();
+    let (modulus, poisson) = (unit.elastomer.youngs_modulus_mpa.to_string(), unit.elastomer.poisson_ratio.to_string());
+    let material = ["--youngs-modulus-mpa", modulus.as_str(), "--poisson-ratio", poisson.as_str()];
+    let report = ok(label(&session, &truth(&session), &labelled, &material));
     assert!(report.contains("samples/s"), "{report}");
 
     let (g, l) = (Manifest::load(&generated).unwrap(), Manifest::load(&labelled).unwrap());
@@ -78,6 +83,9 @@ fn a_session_labelled_with_the_true_sensor_is_the_generators_dataset() {
         assert_eq!(a.scene, b.scene, "sample {}: the logged pose round-trips", a.id);
         let bytes = |dir: &Path, rel: &str| std::fs::read(dir.join(rel)).unwrap();
         assert!(bytes(&generated, &a.depth) == bytes(&labelled, &b.depth), "sample {}: depth differs", a.id);
+        let pressure = |r: &formats::dataset::SampleRecord| r.pressure.clone().expect("force labels by default");
+        assert!(bytes(&generated, &pressure(a)) == bytes(&labelled, &pressure(b)), "sample {}: pressure differs", a.id);
+        assert_eq!(a.wrench, b.wrench, "sample {}", a.id);
         assert_eq!(b.capture.as_ref().unwrap().line, b.id as usize + 2);
         tilted += (a.scene.pose.a_axis_deg != 0.0 || a.scene.pose.c_axis_deg != 0.0) as usize;
     }

@@ -5,6 +5,8 @@
 //! DIR/samples/NNNNNN.json   one record per finished sample: its scene, split and statistics
 //! DIR/depth/NNNNNN.png      depth, 16-bit grey PNG in micrometres, on the sensor's crop
 //! DIR/depth_u8/NNNNNN.png   optional: the paper's 8-bit encoding (0..255 = 0..max depth)
+//! DIR/pressure/NNNNNN.png   with force labels: contact pressure, 16-bit grey PNG in 0.1 kPa,
+//!                           on the crop (the record holds the wrench)
 //! DIR/images/NNNNNN.png     with a simulated unit: its 8-bit RGB camera image of the crop (.jpg,
 //!                           the stream as sent, for a unit that streams JPEG)
 //! DIR/unit/unit.json        the unit's optics and lighting (`SensorUnit`)
@@ -253,6 +255,11 @@ pub struct GeneratorParams {
     /// that must read units it never saw rather than one renderer's shading.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub random_looks: bool,
+    /// Whether each sample gets force labels: its pressure map and wrench from the elastomer's
+    /// contact model (the unit's material, or the paper's without a unit). Absent in older
+    /// `generator.json`: none.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub force_labels: bool,
 }
 
 /// The image model this version renders (see [`GeneratorParams::image_model`]).
@@ -264,7 +271,7 @@ fn first_image_model() -> u32 {
 
 impl GeneratorParams {
     /// The generator's defaults: z travel 0..2.5 mm, any B-axis angle, 10% test samples,
-    /// 16-bit depth only, no images.
+    /// 16-bit depth and force labels, no images.
     pub fn new(seed: u64, count: u32, kit: &str) -> Self {
         GeneratorParams {
             seed,
@@ -280,6 +287,7 @@ impl GeneratorParams {
             c_axis_deg: Angles::default(),
             image_model: IMAGE_MODEL,
             random_looks: false,
+            force_labels: true,
         }
     }
 }
@@ -314,9 +322,30 @@ pub struct SampleRecord {
     pub reference: Option<String>,
     pub stats: DepthStats,
     pub cast: CastStats,
+    /// The contact pressure map, when the dataset has force labels (`dataset::mechanics`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pressure: Option<String>,
+    /// The force and torque the contact applies to the sensor, when the dataset has force labels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wrench: Option<Wrench>,
     /// For a labelled capture session: the row of `captures.csv` the sample came from.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub capture: Option<CaptureInfo>,
+}
+
+/// Force (N) and torque (N mm, about the dome's centre) that a contact applies to the sensor, in
+/// the sensor frame (z along the dome's axis, out of the dome).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Wrench {
+    pub force_n: [f64; 3],
+    pub torque_nmm: [f64; 3],
+}
+
+impl SampleRecord {
+    /// The files the record names (relative to the dataset folder).
+    pub fn files(&self) -> impl Iterator<Item = &String> {
+        std::iter::once(&self.depth).chain(&self.image).chain(&self.reference).chain(&self.pressure)
+    }
 }
 
 /// Where a labelled sample came from in its session.
@@ -414,7 +443,7 @@ impl Manifest {
         }
         manifest.sensor.validate().map_err(|e| FormatError::invalid(path, e))?;
         for record in &manifest.samples {
-            for file in std::iter::once(&record.depth).chain(&record.image) {
+            for file in record.files() {
                 if !is_inside(file) {
                     return Err(FormatError::invalid(
                         path,
@@ -431,12 +460,7 @@ impl Manifest {
 
     /// The files the records list that are not in `dir`.
     pub fn missing_files(&self, dir: &Path) -> Vec<std::path::PathBuf> {
-        self.samples
-            .iter()
-            .flat_map(|s| std::iter::once(&s.depth).chain(&s.image))
-            .map(|f| dir.join(f))
-            .filter(|f| !f.is_file())
-            .collect()
+        self.samples.iter().flat_map(|s| s.files()).map(|f| dir.join(f)).filter(|f| !f.is_file()).collect()
     }
 
     /// The records of one split, or of all of them.

@@ -58,19 +58,52 @@ impl DepthMap {
 
     /// Decodes a 16-bit micrometre PNG's bytes; `path` names it in errors.
     pub fn decode_png_um(path: &Path, bytes: &[u8]) -> Result<Self, SensorError> {
-        let bad = |message: String| SensorError::InFile { path: path.to_path_buf(), message };
-        let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
-            .map_err(|e| bad(format!("not a readable PNG: {e}")))?;
-        let image::DynamicImage::ImageLuma16(img) = img else {
-            return Err(bad(format!("expected a 16-bit greyscale depth PNG, got {:?}", img.color())));
-        };
-        if img.width() != img.height() {
-            return Err(bad(format!("depth map must be square, got {}x{}", img.width(), img.height())));
-        }
-        let size_px = img.width();
-        let depth_mm = img.into_raw().into_iter().map(|v| v as f32 * PNG_UM_PER_STEP / 1000.0).collect();
+        let (size_px, raw) = decode_square_u16(path, bytes, "depth")?;
+        let depth_mm = raw.into_iter().map(|v| v as f32 * PNG_UM_PER_STEP / 1000.0).collect();
         Ok(DepthMap { size_px, depth_mm })
     }
+}
+
+/// Contact pressure (kPa) on the crop's pixel grid, row-major: what the elastomer's contact
+/// model puts under each pixel's point of the dome. Pixels off contact hold 0.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PressureMap {
+    pub size_px: u32,
+    pub pressure_kpa: Vec<f32>,
+}
+
+/// One step of the pressure PNG's 16-bit encoding (kPa): 6553.5 kPa at most, far above what a
+/// 0.3 MPa silicone bears before it tears.
+pub const PNG_KPA_PER_STEP: f32 = 0.1;
+
+impl PressureMap {
+    /// 16-bit grey PNG, [`PNG_KPA_PER_STEP`] a level, rounded to the nearest.
+    pub fn to_png(&self) -> Vec<u8> {
+        let px: Vec<u16> =
+            self.pressure_kpa.iter().map(|&p| ((p / PNG_KPA_PER_STEP).clamp(0.0, 65535.0) + 0.5) as u16).collect();
+        encode_png(self.size_px, px)
+    }
+
+    /// Reads a pressure PNG; the error names the file and what is wrong with it.
+    pub fn load_png(path: &Path) -> Result<Self, SensorError> {
+        let bytes = std::fs::read(path).map_err(|e| SensorError::io(path, e))?;
+        let (size_px, raw) = decode_square_u16(path, &bytes, "pressure")?;
+        Ok(PressureMap { size_px, pressure_kpa: raw.into_iter().map(|v| v as f32 * PNG_KPA_PER_STEP).collect() })
+    }
+}
+
+/// A square 16-bit grey PNG's side and levels; `what` names the map in errors.
+fn decode_square_u16(path: &Path, bytes: &[u8], what: &str) -> Result<(u32, Vec<u16>), SensorError> {
+    let bad = |message: String| SensorError::InFile { path: path.to_path_buf(), message };
+    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
+        .map_err(|e| bad(format!("not a readable PNG: {e}")))?;
+    let image::DynamicImage::ImageLuma16(img) = img else {
+        return Err(bad(format!("expected a 16-bit greyscale {what} PNG, got {:?}", img.color())));
+    };
+    if img.width() != img.height() {
+        return Err(bad(format!("{what} map must be square, got {}x{}", img.width(), img.height())));
+    }
+    Ok((img.width(), img.into_raw()))
 }
 
 /// A square grey image as PNG bytes, in memory. Fast deflate with the `Up` filter: lossless like
@@ -113,6 +146,26 @@ mod tests {
         for (a, b) in d.depth_mm.iter().zip(&back.depth_mm) {
             assert!((a - b).abs() <= 0.0005 + 1e-6, "{a} vs {b}");
         }
+    }
+
+    #[test]
+    fn pressure_round_trips_within_half_a_step_and_is_not_read_as_depth_colours() {
+        let mut p = PressureMap { size_px: 23, pressure_kpa: vec![0.0; 23 * 23] };
+        for (i, v) in p.pressure_kpa.iter_mut().enumerate() {
+            *v = (i as f32 * 1.37) % 900.0;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.png");
+        std::fs::write(&path, p.to_png()).unwrap();
+        let back = PressureMap::load_png(&path).unwrap();
+        assert_eq!(back.size_px, 23);
+        for (a, b) in p.pressure_kpa.iter().zip(&back.pressure_kpa) {
+            assert!((a - b).abs() <= PNG_KPA_PER_STEP / 2.0 + 1e-3, "{a} vs {b}");
+        }
+        // An 8-bit map is refused, naming the file and the map.
+        std::fs::write(&path, DepthMap::zeros(5).to_png_u8(1.0)).unwrap();
+        let err = PressureMap::load_png(&path).unwrap_err().to_string();
+        assert!(err.contains("p.png") && err.contains("16-bit greyscale pressure"), "{err}");
     }
 
     #[test]

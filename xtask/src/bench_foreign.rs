@@ -118,6 +118,7 @@ fn one(
         kit,
         on_bad_row: OnBadRow::Stop,
         z: Default::default(),
+        force: None,
     }
     .run()?;
     let device = model::backend::default_device();

@@ -86,6 +86,7 @@ pub fn run(args: Args) -> Result<()> {
             kit: &kit,
             on_bad_row: OnBadRow::Stop,
             z: Default::default(),
+            force: None,
         }
         .run()?;
         sets.push((format!("gelcam unit {g} (membrane {:.2} px)", unit.look.membrane_sigma_px), data, None));

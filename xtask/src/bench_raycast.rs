@@ -122,23 +122,30 @@ pub fn run(args: Args) -> Result<()> {
     }
 
     // Whole generator, depth PNG writes included: the embedded kit and the authors' kit, depth
-    // only and with a simulated unit's RGB images rendered and written too.
+    // only and with a simulated unit's RGB images rendered and written too, each without and
+    // with force labels (pressure PNG and wrench).
     println!();
     let kits = [("procedural kit", Kit::procedural(sensor.radius_mm as f32)), ("DenseTact kit", kit)];
     let unit = SensorUnit::from_seed(args.unit, sensor.radius_mm);
     let renderer = Renderer::for_crop(&unit);
     for (name, kit) in &kits {
-        for with_images in [false, true] {
+        for (with_images, force_labels) in [(false, false), (false, true), (true, false), (true, true)] {
             let dir = std::env::temp_dir().join(format!("densetact-bench-gen-{}", std::process::id()));
             std::fs::remove_dir_all(&dir).ok();
             let params = GeneratorParams {
                 unit: with_images.then_some(args.unit),
+                force_labels,
                 ..GeneratorParams::new(1, args.samples, &kit.source)
             };
             let (sensor, renderer) = if with_images { (&unit.sensor, Some(&renderer)) } else { (&sensor, None) };
             let report = Generator { out: dir.clone(), sensor, kit, params, skipping: Skipping::On, renderer }.run()?;
             std::fs::remove_dir_all(&dir).ok();
-            let what = if with_images { "depth PNG + camera image" } else { "depth PNGs" };
+            let what = match (with_images, force_labels) {
+                (false, false) => "depth PNGs",
+                (false, true) => "depth PNGs + force labels",
+                (true, false) => "depth PNG + camera image",
+                (true, true) => "depth PNG + camera image + force labels",
+            };
             println!(
                 "generator ({name}, {what} written): {} samples in {:.2} s = {:.1} samples/s",
                 report.generated,

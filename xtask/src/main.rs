@@ -6,6 +6,7 @@
 mod bench_calibrate;
 mod bench_drift;
 mod bench_finetune;
+mod bench_force;
 mod bench_foreign;
 mod bench_icp_index;
 mod bench_loader;
@@ -73,6 +74,9 @@ enum Bench {
     /// A camera drifting for twenty minutes: untouched frames gated, false contacts, contact
     /// L1, with the gate before and after its drift balance and with a following reference.
     Drift(bench_drift::Args),
+    /// The elastomer's contact model: Hertz and Boussinesq against the model on two grids, and
+    /// the force labels' cost and grid convergence on the kit's scenes.
+    Force(bench_force::Args),
 }
 
 fn main() -> ExitCode {
@@ -87,6 +91,7 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Foreign(args) } => bench_foreign::run(args),
         Command::Bench { what: Bench::Finetune(args) } => bench_finetune::run(args),
         Command::Bench { what: Bench::Drift(args) } => bench_drift::run(args),
+        Command::Bench { what: Bench::Force(args) } => bench_force::run(args),
         Command::Bench { what: Bench::IcpIndex(args) } => bench_icp_index::run(args),
         Command::Bench { what: Bench::Loader(args) } => bench_loader::run(args),
         Command::Bench { what: Bench::Looks(args) } => bench_looks::run(args),

@@ -46,6 +46,7 @@ fn label(session: &Path, out: &Path, sensor: &Sensor, kit: &Kit) -> Result<()> {
         kit,
         on_bad_row: OnBadRow::Skip,
         z: Default::default(),
+        force: None,
     };
     labeller.run().map(|_| ())
 }

@@ -1,0 +1,187 @@
+//! A sample's force labels from its depth map: the contact solved where the map says the scene
+//! overlaps the dome, its pressure resampled onto the map's own pixels.
+
+use glam::DVec3;
+use sensor::{DepthMap, PNG_UM_PER_STEP, Sensor};
+
+use super::{Contact, GridConfig, Material, MechanicsError, Wrench};
+use crate::raycast::RayBundle;
+
+/// The dome as the depth map's pixels see it, prepared once per sensor.
+pub struct Dome {
+    radius_mm: f64,
+    n: usize,
+    /// Unit direction of each crop pixel (zero outside the useful disk).
+    dirs: Vec<DVec3>,
+    sensor: Sensor,
+}
+
+impl Dome {
+    pub fn new(sensor: &Sensor, rays: &RayBundle) -> Self {
+        let n = sensor.crop_size_px as usize;
+        let mut dirs = vec![DVec3::ZERO; n * n];
+        for (d, &i) in rays.dirs.iter().zip(&rays.indices) {
+            dirs[i as usize] = d.as_dvec3();
+        }
+        Dome { radius_mm: sensor.radius_mm, n, dirs, sensor: sensor.clone() }
+    }
+
+    /// The depth at the crop position where unit `dir` is seen, bilinear between the four
+    /// pixels around it (mm; -1 where it leaves the useful disk).
+    fn depth_along(&self, depth: &DepthMap, dir: DVec3) -> f64 {
+        let Some((u, v)) = self.sensor.correspondence.pixel(dir) else { return -1.0 };
+        let (x0, y0) = self.sensor.crop_to_frame(0, 0);
+        let (x, y) = (u - x0, v - y0);
+        let (fx, fy) = (x.floor(), y.floor());
+        if !(fx >= 0.0 && fy >= 0.0 && fx + 1.0 < self.n as f64 && fy + 1.0 < self.n as f64) {
+            return -1.0;
+        }
+        let (i, j) = (fx as usize, fy as usize);
+        let (ax, ay) = (x - fx, y - fy);
+        let at = |i: usize, j: usize| depth.depth_mm[j * self.n + i] as f64;
+        (1.0 - ay) * ((1.0 - ax) * at(i, j) + ax * at(i + 1, j))
+            + ay * ((1.0 - ax) * at(i, j + 1) + ax * at(i + 1, j + 1))
+    }
+}
+
+/// One sample's force labels.
+pub struct ForceLabel {
+    /// Contact pressure on the depth map's pixels (kPa, row-major crop; 0 off contact).
+    pub pressure_kpa: Vec<f32>,
+    pub wrench: Wrench,
+    pub contact: Contact,
+}
+
+/// Solves the contact that `depth` shows (its pixels above zero, one region per 4-connected
+/// group) and resamples the pressure onto its pixels.
+pub fn force_label(
+    dome: &Dome,
+    depth: &DepthMap,
+    material: &Material,
+    grid: &GridConfig,
+) -> Result<ForceLabel, MechanicsError> {
+    let n = dome.n;
+    assert_eq!(depth.size_px as usize, n, "the depth map is on the dome's crop");
+    // A region's outline bounds it: the patches need no more.
+    let (outlines, region_of) = outlines(depth, n);
+    let regions = outlines
+        .into_iter()
+        .map(|r| r.into_iter().map(|i| dome.dirs[i as usize]).collect())
+        .collect::<Vec<Vec<DVec3>>>();
+    let contact = super::solve(dome.radius_mm, material, grid, &regions, |dir| {
+        let d = dome.depth_along(depth, dir);
+        if d > 0.0 { d } else { -1.0 }
+    })?;
+    let mut pressure_kpa = vec![0f32; n * n];
+    // Only pixels near a loaded node can read a pressure: the crop's box around those nodes and
+    // their neighbours (the bilinear lookup's reach).
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    let (x0, y0) = dome.sensor.crop_to_frame(0, 0);
+    for p in &contact.patches {
+        let [w, h] = p.size;
+        for j in 0..h {
+            for i in 0..w {
+                if !(p.pressure_kpa[j * w + i] > 0.0) {
+                    continue;
+                }
+                for (a, b) in [(i.saturating_sub(1), j.saturating_sub(1)), ((i + 1).min(w - 1), (j + 1).min(h - 1))] {
+                    for (ii, jj) in [(a, b), (a, j), (i, b)] {
+                        if let Some((u, v)) = dome.sensor.correspondence.pixel(p.direction(dome.radius_mm, ii, jj)) {
+                            for (k, c) in [u - x0, v - y0].into_iter().enumerate() {
+                                lo[k] = lo[k].min(c);
+                                hi[k] = hi[k].max(c);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    if lo[0].is_finite() {
+        let clip = |v: f64| (v.max(0.0) as usize).min(n - 1);
+        let (xa, xb, ya, yb) = (clip(lo[0] - 2.0), clip(hi[0] + 2.0), clip(lo[1] - 2.0), clip(hi[1] + 2.0));
+        for y in ya..=yb {
+            for x in xa..=xb {
+                let i = y * n + x;
+                // Each pixel reads the patch its region was solved on; one whose depth the 16-bit
+                // PNG stores as zero reads none, so that the two maps agree on disk.
+                if !(depth.depth_mm[i] * 1000.0 / PNG_UM_PER_STEP > 0.5) {
+                    continue;
+                }
+                if let Some(Some(patch)) = contact.region_patch.get(region_of[i] as usize) {
+                    pressure_kpa[i] = contact.pressure_on(*patch, dome.dirs[i]) as f32;
+                }
+            }
+        }
+    }
+    Ok(ForceLabel { pressure_kpa, wrench: contact.wrench(), contact })
+}
+
+/// The outline of each 4-connected group of pixels with depth above zero (its pixels with a
+/// neighbour outside it, crop indices), and each pixel's group (`u32::MAX`: none).
+fn outlines(depth: &DepthMap, n: usize) -> (Vec<Vec<u32>>, Vec<u32>) {
+    let inside = |k: usize| depth.depth_mm[k] > 0.0;
+    let mut seen = vec![false; n * n];
+    let mut group = vec![u32::MAX; n * n];
+    let mut out = Vec::new();
+    let mut stack = Vec::new();
+    for start in 0..n * n {
+        if seen[start] || !inside(start) {
+            continue;
+        }
+        seen[start] = true;
+        stack.push(start);
+        let mut outline = Vec::new();
+        while let Some(i) = stack.pop() {
+            group[i] = out.len() as u32;
+            let (x, y) = (i % n, i / n);
+            let neighbours = [
+                (x > 0).then(|| i - 1),
+                (x + 1 < n).then(|| i + 1),
+                (y > 0).then(|| i - n),
+                (y + 1 < n).then(|| i + n),
+            ];
+            let mut edge = false;
+            for k in neighbours {
+                match k {
+                    Some(k) if inside(k) => {
+                        if !seen[k] {
+                            seen[k] = true;
+                            stack.push(k);
+                        }
+                    }
+                    _ => edge = true,
+                }
+            }
+            if edge {
+                outline.push(i as u32);
+            }
+        }
+        out.push(outline);
+    }
+    (out, group)
+}
+
+impl Contact {
+    /// The pressure (kPa) where unit `dir` meets the dome: bilinear between the nodes of the
+    /// patch whose grid holds it, 0 outside every patch.
+    pub fn pressure_along(&self, dir: DVec3) -> f64 {
+        (0..self.patches.len()).map(|k| self.pressure_on(k, dir)).find(|&p| p > 0.0).unwrap_or(0.0)
+    }
+
+    /// The pressure (kPa) that patch `k` puts where unit `dir` meets the dome (0 off its grid).
+    pub fn pressure_on(&self, k: usize, dir: DVec3) -> f64 {
+        let p = &self.patches[k];
+        let Some([s, t]) = p.project(self.radius_mm, dir) else { return 0.0 };
+        let (x, y) = ((s - p.origin_mm[0]) / p.spacing_mm, (t - p.origin_mm[1]) / p.spacing_mm);
+        let (fx, fy) = (x.floor(), y.floor());
+        if !(fx >= 0.0 && fy >= 0.0 && fx + 1.0 < p.size[0] as f64 && fy + 1.0 < p.size[1] as f64) {
+            return 0.0;
+        }
+        let (i, j) = (fx as usize, fy as usize);
+        let (ax, ay) = (x - fx, y - fy);
+        let at = |i: usize, j: usize| p.pressure_kpa[j * p.size[0] + i];
+        (1.0 - ay) * ((1.0 - ax) * at(i, j) + ax * at(i + 1, j))
+            + ay * ((1.0 - ax) * at(i, j + 1) + ax * at(i + 1, j + 1))
+    }
+}
