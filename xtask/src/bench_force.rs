@@ -104,8 +104,10 @@ pub fn run(args: Args) -> Result<()> {
     println!("- total normal force (N): {}", show(Summary::of(forces)));
     println!("- nodes in contact: {}; pivoting steps: {}", show(Summary::of(nodes)), show(Summary::of(steps)));
     println!("- force labels, ms per scene (one thread): {}", show(Summary::of(ms)));
-    println!("- on the halved grid, ms per scene: {}", show(Summary::of(ms_fine)));
-    println!("- force change on the halved grid (%): {}", show(Summary::of(changes)));
+    if !args.no_halved {
+        println!("- on the halved grid, ms per scene: {}", show(Summary::of(ms_fine)));
+        println!("- force change on the halved grid (%): {}", show(Summary::of(changes)));
+    }
     Ok(())
 }
 

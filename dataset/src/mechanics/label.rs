@@ -26,6 +26,12 @@ impl Dome {
         Dome { radius_mm: sensor.radius_mm, n, dirs, sensor: sensor.clone() }
     }
 
+    /// Unit direction of crop pixel `i` (zero outside the useful disk).
+    #[cfg(test)]
+    pub(crate) fn dir(&self, i: usize) -> DVec3 {
+        self.dirs[i]
+    }
+
     /// The depth at the crop position where unit `dir` is seen, bilinear between the four
     /// pixels around it (mm; -1 where it leaves the useful disk).
     fn depth_along(&self, depth: &DepthMap, dir: DVec3) -> f64 {
@@ -43,6 +49,9 @@ impl Dome {
             + ay * ((1.0 - ax) * at(i, j + 1) + ax * at(i + 1, j + 1))
     }
 }
+
+/// The lattice step (crop pixels) at which each patch's map coordinates are computed exactly.
+const STRIDE: usize = 4;
 
 /// One sample's force labels.
 pub struct ForceLabel {
@@ -100,6 +109,24 @@ pub fn force_label(
     if lo[0].is_finite() {
         let clip = |v: f64| (v.max(0.0) as usize).min(n - 1);
         let (xa, xb, ya, yb) = (clip(lo[0] - 2.0), clip(hi[0] + 2.0), clip(lo[1] - 2.0), clip(hi[1] + 2.0));
+        // Each patch's map coordinates on a lattice of every STRIDE-th pixel of the box,
+        // interpolated in between: the map is smooth on the crop, and one exact mapping per
+        // pixel was the label's largest cost on broad contacts.
+        let (cols, rows) = ((xb - xa) / STRIDE + 2, (yb - ya) / STRIDE + 2);
+        let lattice: Vec<Vec<Option<[f64; 2]>>> = contact
+            .patches
+            .iter()
+            .map(|p| {
+                (0..rows * cols)
+                    .map(|k| {
+                        let (x, y) = (xa + (k % cols) * STRIDE, ya + (k / cols) * STRIDE);
+                        let (u, v) = dome.sensor.crop_to_frame(x as u32, y as u32);
+                        let (dir, _) = dome.sensor.correspondence.direction(u, v)?;
+                        p.project(dome.radius_mm, dir)
+                    })
+                    .collect()
+            })
+            .collect();
         for y in ya..=yb {
             for x in xa..=xb {
                 let i = y * n + x;
@@ -108,8 +135,28 @@ pub fn force_label(
                 if !(depth.depth_mm[i] * 1000.0 / PNG_UM_PER_STEP > 0.5) {
                     continue;
                 }
-                if let Some(Some(patch)) = contact.region_patch.get(region_of[i] as usize) {
-                    pressure_kpa[i] = contact.pressure_on(*patch, dome.dirs[i]) as f32;
+                let Some(Some(k)) = contact.region_patch.get(region_of[i] as usize) else { continue };
+                let (cx, cy) = ((x - xa) / STRIDE, (y - ya) / STRIDE);
+                let (ax, ay) = (((x - xa) % STRIDE) as f64 / STRIDE as f64, ((y - ya) % STRIDE) as f64 / STRIDE as f64);
+                let table = &lattice[*k];
+                let corners = [
+                    table[cy * cols + cx],
+                    table[cy * cols + cx + 1],
+                    table[(cy + 1) * cols + cx],
+                    table[(cy + 1) * cols + cx + 1],
+                ];
+                let st = match corners {
+                    [Some(a), Some(b), Some(c), Some(d)] => {
+                        let mix = |m: usize| {
+                            (1.0 - ay) * ((1.0 - ax) * a[m] + ax * b[m]) + ay * ((1.0 - ax) * c[m] + ax * d[m])
+                        };
+                        Some([mix(0), mix(1)])
+                    }
+                    // Beyond the lens' model at a corner: the pixel's own mapping.
+                    _ => contact.patches[*k].project(dome.radius_mm, dome.dirs[i]),
+                };
+                if let Some(st) = st {
+                    pressure_kpa[i] = contact.patches[*k].pressure_at(st) as f32;
                 }
             }
         }
@@ -172,7 +219,14 @@ impl Contact {
     /// The pressure (kPa) that patch `k` puts where unit `dir` meets the dome (0 off its grid).
     pub fn pressure_on(&self, k: usize, dir: DVec3) -> f64 {
         let p = &self.patches[k];
-        let Some([s, t]) = p.project(self.radius_mm, dir) else { return 0.0 };
+        p.project(self.radius_mm, dir).map_or(0.0, |st| p.pressure_at(st))
+    }
+}
+
+impl super::Patch {
+    /// The pressure (kPa) at map coordinates `[s, t]`: bilinear between nodes, 0 off the grid.
+    pub fn pressure_at(&self, [s, t]: [f64; 2]) -> f64 {
+        let p = self;
         let (x, y) = ((s - p.origin_mm[0]) / p.spacing_mm, (t - p.origin_mm[1]) / p.spacing_mm);
         let (fx, fy) = (x.floor(), y.floor());
         if !(fx >= 0.0 && fy >= 0.0 && fx + 1.0 < p.size[0] as f64 && fy + 1.0 < p.size[1] as f64) {
