@@ -3,12 +3,13 @@
 //!
 //! The model is the one Hertz's and Boussinesq's closed forms rest on: a linear-elastic,
 //! isotropic half-space under frictionless normal load. Each connected region where the scene
-//! overlaps the dome gets a patch: a square grid on the dome's tangent plane at the region's
-//! centre, each node seeing the dome (and the indenter) along its own radial ray. The dome's
-//! curvature enters only through the gap between dome and indenter, as in Hertz's theory;
-//! nodes of one patch interact through Love's closed form for a uniformly loaded square,
-//! nodes of different patches as point forces. The contact forces solve a complementarity
-//! problem (no pull, no penetration; `lcp`).
+//! overlaps the dome gets a patch: a square grid in azimuthal-equidistant coordinates about the
+//! region's centre (near it, the tangent plane), each node seeing the dome (and the indenter)
+//! along its own radial ray; regions whose grids would overlap share one. The dome's curvature
+//! enters only through the gap between dome and indenter, as in Hertz's theory; nodes of one
+//! patch interact through Love's closed form for a uniformly loaded square, nodes of different
+//! patches as point forces. The contact forces solve a complementarity problem (no pull, no
+//! penetration; `lcp`).
 //!
 //! What a linear half-space cannot do: large strain (it is accurate while the contact stays small
 //! against the dome's 25 mm radius and the indentation small against the contact), friction and
