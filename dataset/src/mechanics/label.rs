@@ -37,16 +37,7 @@ impl Dome {
     fn depth_along(&self, depth: &DepthMap, dir: DVec3) -> f64 {
         let Some((u, v)) = self.sensor.correspondence.pixel(dir) else { return -1.0 };
         let (x0, y0) = self.sensor.crop_to_frame(0, 0);
-        let (x, y) = (u - x0, v - y0);
-        let (fx, fy) = (x.floor(), y.floor());
-        if !(fx >= 0.0 && fy >= 0.0 && fx + 1.0 < self.n as f64 && fy + 1.0 < self.n as f64) {
-            return -1.0;
-        }
-        let (i, j) = (fx as usize, fy as usize);
-        let (ax, ay) = (x - fx, y - fy);
-        let at = |i: usize, j: usize| depth.depth_mm[j * self.n + i] as f64;
-        (1.0 - ay) * ((1.0 - ax) * at(i, j) + ax * at(i + 1, j))
-            + ay * ((1.0 - ax) * at(i, j + 1) + ax * at(i + 1, j + 1))
+        bilinear([self.n, self.n], u - x0, v - y0, |i, j| depth.depth_mm[j * self.n + i] as f64).unwrap_or(-1.0)
     }
 }
 
@@ -226,16 +217,22 @@ impl Contact {
 impl super::Patch {
     /// The pressure (kPa) at map coordinates `[s, t]`: bilinear between nodes, 0 off the grid.
     pub fn pressure_at(&self, [s, t]: [f64; 2]) -> f64 {
-        let p = self;
-        let (x, y) = ((s - p.origin_mm[0]) / p.spacing_mm, (t - p.origin_mm[1]) / p.spacing_mm);
-        let (fx, fy) = (x.floor(), y.floor());
-        if !(fx >= 0.0 && fy >= 0.0 && fx + 1.0 < p.size[0] as f64 && fy + 1.0 < p.size[1] as f64) {
-            return 0.0;
-        }
-        let (i, j) = (fx as usize, fy as usize);
-        let (ax, ay) = (x - fx, y - fy);
-        let at = |i: usize, j: usize| p.pressure_kpa[j * p.size[0] + i];
-        (1.0 - ay) * ((1.0 - ax) * at(i, j) + ax * at(i + 1, j))
-            + ay * ((1.0 - ax) * at(i, j + 1) + ax * at(i + 1, j + 1))
+        let (x, y) = ((s - self.origin_mm[0]) / self.spacing_mm, (t - self.origin_mm[1]) / self.spacing_mm);
+        bilinear(self.size, x, y, |i, j| self.pressure_kpa[j * self.size[0] + i]).unwrap_or(0.0)
     }
+}
+
+/// The value at `(x, y)` (grid units) between the four nodes around it of a `size` grid read by
+/// `at(i, j)`; `None` unless all four exist. The depth map and the patches' grids both use it.
+fn bilinear(size: [usize; 2], x: f64, y: f64, at: impl Fn(usize, usize) -> f64) -> Option<f64> {
+    let (fx, fy) = (x.floor(), y.floor());
+    if !(fx >= 0.0 && fy >= 0.0 && fx + 1.0 < size[0] as f64 && fy + 1.0 < size[1] as f64) {
+        return None;
+    }
+    let (i, j) = (fx as usize, fy as usize);
+    let (ax, ay) = (x - fx, y - fy);
+    Some(
+        (1.0 - ay) * ((1.0 - ax) * at(i, j) + ax * at(i + 1, j))
+            + ay * ((1.0 - ax) * at(i, j + 1) + ax * at(i + 1, j + 1)),
+    )
 }
