@@ -343,6 +343,7 @@ impl Labeller<'_> {
                 frame: c.frame.clone(),
                 line: c.line,
                 extra: c.extra.clone(),
+                measured_wrench: c.measured,
                 sha256: Some(digest),
             }),
         };

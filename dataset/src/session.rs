@@ -200,8 +200,15 @@ impl SessionWriter<'_> {
             let (_, bytes) = self.camera.frame(&depth.depth_mm, noise_seed(&self.params, id));
             let frame = format!("frames/{}.{ext}", sample_name(id));
             write_atomic_unsynced(&self.out.join(&frame), &bytes)?;
-            let capture =
-                Capture { line: 0, frame, split: trial.split, trial: trial.number, pose, extra: Default::default() };
+            let capture = Capture {
+                line: 0,
+                frame,
+                split: trial.split,
+                trial: trial.number,
+                pose,
+                extra: Default::default(),
+                measured: None,
+            };
             let row = SimulatedRow { capture, frame_sha256: formats::fs::sha256_hex(&bytes) };
             write_atomic_unsynced(&rows.join(format!("{}.json", sample_name(id))), &serde_json::to_vec_pretty(&row)?)?;
             Ok((id, row))

@@ -508,3 +508,47 @@ fn a_resumed_labelling_relabels_rows_and_frames_that_changed() {
     ok(label(&session, &sensor, &fresh, &[]));
     common::assert_same_files(&resumed, &fresh, "a log with a row removed and one changed, resumed");
 }
+
+/// A log with a force-torque sensor's columns: `label` keeps each row's measured wrench in its
+/// sample's record, and that is the wrench the sample's force is trained and scored against;
+/// rows whose cells are empty keep the labelled one.
+#[test]
+fn measured_wrenches_in_the_log_travel_to_the_samples() {
+    let tmp = tempfile::tempdir().unwrap();
+    let session = tmp.path().join("s");
+    simulated_session(&session, &[]);
+    let (plain, measured) = (tmp.path().join("plain"), tmp.path().join("measured"));
+    ok(label(&session, &truth(&session), &plain, &[]));
+    let labelled = Manifest::load(&plain).unwrap();
+    // A "sensor" reading 10 % above the model's force on every other row.
+    let mut log = formats::session::CaptureLog::read(&session).unwrap();
+    for row in &mut log.rows {
+        let sample = labelled.samples.iter().find(|s| s.capture.as_ref().unwrap().line == row.line).unwrap();
+        let w = sample.wrench.unwrap();
+        row.measured = (row.line % 2 == 0)
+            .then(|| formats::dataset::Wrench { force_n: w.force_n.map(|f| f * 1.1), torque_nmm: [0.5, -0.5, 0.0] });
+    }
+    let csv = formats::session::CaptureLog::to_csv(&log.rows);
+    assert!(csv.lines().next().unwrap().contains("fx_n,fy_n,fz_n,tx_nmm,ty_nmm,tz_nmm"));
+    std::fs::write(session.join(formats::session::CAPTURES_CSV), csv).unwrap();
+    ok(label(&session, &truth(&session), &measured, &[]));
+    let (a, b) = (labelled.samples, Manifest::load(&measured).unwrap().samples);
+    assert_eq!(a.len(), b.len());
+    for (a, b) in a.iter().zip(&b) {
+        let line = b.capture.as_ref().unwrap().line;
+        assert_eq!(a.wrench, b.wrench, "the labelled wrench stays");
+        match b.measured_wrench() {
+            Some(m) => {
+                assert!(line % 2 == 0);
+                for (m, l) in m.force_n.iter().zip(a.wrench.unwrap().force_n) {
+                    assert!((m - 1.1 * l).abs() <= 1e-6 * l.abs().max(1.0), "line {line}: {m} against {l}");
+                }
+                assert_eq!(b.force_label(), Some(m));
+            }
+            None => {
+                assert!(line % 2 == 1, "line {line} lost its measurement");
+                assert_eq!(b.force_label(), b.wrench.as_ref());
+            }
+        }
+    }
+}

@@ -333,18 +333,23 @@ pub struct SampleRecord {
     pub capture: Option<CaptureInfo>,
 }
 
-/// Force (N) and torque (N mm, about the dome's centre) that a contact applies to the sensor, in
-/// the sensor frame (z along the dome's axis, out of the dome).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Wrench {
-    pub force_n: [f64; 3],
-    pub torque_nmm: [f64; 3],
-}
+pub use sensor::Wrench;
 
 impl SampleRecord {
     /// The files the record names (relative to the dataset folder).
     pub fn files(&self) -> impl Iterator<Item = &String> {
         std::iter::once(&self.depth).chain(&self.image).chain(&self.reference).chain(&self.pressure)
+    }
+
+    /// The wrench a force output is trained and scored against: the one a force-torque sensor
+    /// measured where the capture has one, else the labelled one (from the depth map's contact).
+    pub fn force_label(&self) -> Option<&Wrench> {
+        self.measured_wrench().or(self.wrench.as_ref())
+    }
+
+    /// The wrench measured for this sample's capture, if any (`captures.csv`'s force-torque columns).
+    pub fn measured_wrench(&self) -> Option<&Wrench> {
+        self.capture.as_ref().and_then(|c| c.measured_wrench.as_ref())
     }
 }
 
@@ -358,6 +363,10 @@ pub struct CaptureInfo {
     /// The row's other columns.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub extra: BTreeMap<String, String>,
+    /// The wrench a force-torque sensor measured for the frame (`captures.csv`'s `fx_n`, ...,
+    /// `tz_nmm`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measured_wrench: Option<Wrench>,
     /// SHA-256 of what the sample was made from: the row (all but its line) and the frame
     /// file's bytes. A resumed labelling makes the sample again when they changed.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -26,6 +26,11 @@ pub const CAPTURES_CSV: &str = "captures.csv";
 /// The columns every log must have, in the order a written log puts them.
 pub const REQUIRED_COLUMNS: [&str; 7] = ["frame", "split", "trial", "a_deg", "b_deg", "c_deg", "z_mm"];
 
+/// The optional columns of a force-torque sensor under the indenter: the force (N) and torque
+/// (N mm) the contact applies to the sensor, in the sensor frame (z along the dome's axis, out
+/// of the dome; torque about the dome's centre). All six or none; a row may leave all six empty.
+pub const WRENCH_COLUMNS: [&str; 6] = ["fx_n", "fy_n", "fz_n", "tx_nmm", "ty_nmm", "tz_nmm"];
+
 /// One row of `captures.csv`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Capture {
@@ -39,6 +44,9 @@ pub struct Capture {
     /// The row's other columns, by header name.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub extra: BTreeMap<String, String>,
+    /// The wrench a force-torque sensor measured for this frame ([`WRENCH_COLUMNS`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measured: Option<crate::dataset::Wrench>,
 }
 
 /// A problem with the log: the file, the line and what is wrong.
@@ -109,6 +117,15 @@ impl CaptureLog {
                 REQUIRED_COLUMNS.join(",")
             )));
         }
+        let wrench_columns = WRENCH_COLUMNS.iter().filter(|c| column.contains_key(**c)).count();
+        if wrench_columns > 0 && wrench_columns < WRENCH_COLUMNS.len() {
+            let missing: Vec<&str> = WRENCH_COLUMNS.iter().copied().filter(|c| !column.contains_key(*c)).collect();
+            return Err(file(format!(
+                "the header has some force-torque columns but lacks {}; a measured wrench needs all of {}",
+                missing.join(", "),
+                WRENCH_COLUMNS.join(",")
+            )));
+        }
         let mut log = CaptureLog { path: path.to_path_buf(), rows: Vec::new(), bad: Vec::new() };
         let mut seen = BTreeMap::<String, usize>::new();
         let mut lines = LineCounter { bytes, at: 0, line: 1 };
@@ -153,15 +170,26 @@ impl CaptureLog {
                     c_axis_deg: number("c_deg")?,
                     z_travel_mm: number("z_mm")?,
                 };
+                let measured = match wrench_columns {
+                    0 => None,
+                    _ if WRENCH_COLUMNS.iter().all(|c| get(c).is_empty()) => None,
+                    _ => {
+                        let v = WRENCH_COLUMNS.map(|name| number(name).map(f64::from));
+                        let [fx, fy, fz, tx, ty, tz] = v;
+                        Some(crate::dataset::Wrench { force_n: [fx?, fy?, fz?], torque_nmm: [tx?, ty?, tz?] })
+                    }
+                };
                 let extra = column
                     .iter()
-                    .filter(|(name, _)| !REQUIRED_COLUMNS.contains(&name.as_str()))
+                    .filter(|(name, _)| {
+                        !REQUIRED_COLUMNS.contains(&name.as_str()) && !WRENCH_COLUMNS.contains(&name.as_str())
+                    })
                     .map(|(name, &k)| (name.clone(), record.get(k).unwrap_or("").to_string()))
                     .collect();
                 if let Some(first) = seen.get(&frame) {
                     return Err(row(format!("frame {frame:?} is already listed on line {first}")));
                 }
-                Ok(Capture { line, frame, split, trial, pose, extra })
+                Ok(Capture { line, frame, split, trial, pose, extra, measured })
             })();
             match parsed {
                 Ok(c) => {
@@ -177,11 +205,15 @@ impl CaptureLog {
         Ok(log)
     }
 
-    /// The log as CSV text: the required columns, then the extra columns of the first row.
+    /// The log as CSV text: the required columns, the force-torque columns where a row has a
+    /// measured wrench, then the extra columns of the first row.
     pub fn to_csv(rows: &[Capture]) -> String {
         let extra: Vec<&String> = rows.first().map(|r| r.extra.keys().collect()).unwrap_or_default();
+        let wrenches = rows.iter().any(|r| r.measured.is_some());
         let mut writer = csv::Writer::from_writer(Vec::new());
-        let header: Vec<&str> = REQUIRED_COLUMNS.iter().copied().chain(extra.iter().map(|s| s.as_str())).collect();
+        let wrench_header = WRENCH_COLUMNS.iter().copied().filter(|_| wrenches);
+        let header: Vec<&str> =
+            REQUIRED_COLUMNS.iter().copied().chain(wrench_header).chain(extra.iter().map(|s| s.as_str())).collect();
         writer.write_record(&header).expect("in-memory CSV");
         for r in rows {
             let p = r.pose;
@@ -194,6 +226,12 @@ impl CaptureLog {
                 p.c_axis_deg.to_string(),
                 p.z_travel_mm.to_string(),
             ];
+            if wrenches {
+                match &r.measured {
+                    Some(w) => fields.extend(w.force_n.iter().chain(&w.torque_nmm).map(f64::to_string)),
+                    None => fields.extend(std::iter::repeat_n(String::new(), WRENCH_COLUMNS.len())),
+                }
+            }
             fields.extend(extra.iter().map(|k| r.extra.get(*k).cloned().unwrap_or_default()));
             writer.write_record(&fields).expect("in-memory CSV");
         }
@@ -294,6 +332,34 @@ mod tests {
         assert_eq!(r.extra["operator"], "bo");
         let again = parse(&CaptureLog::to_csv(&log.rows)).unwrap();
         assert_eq!(again.rows, log.rows);
+    }
+
+    /// A force-torque sensor's columns become the row's measured wrench (all six, or all empty
+    /// for a frame without a reading); half a set, or a cell that is no number, is refused with
+    /// the file, the line and the column.
+    #[test]
+    fn force_torque_columns_are_a_measured_wrench() {
+        let log = parse(
+            "frame,split,trial,a_deg,b_deg,c_deg,z_mm,FX_N,fy_n,fz_n,tx_nmm,ty_nmm,tz_nmm,note\n\
+             f/0.png,train,3,0,0,0,1,0.5,-0.25,-12.5,1.5,0,-2,x\n\
+             f/1.png,train,4,0,0,0,1,,,,,,,y\n\
+             f/2.png,train,5,0,0,0,1,0.5,,-12.5,1.5,0,-2,z\n\
+             f/3.png,train,6,0,0,0,1,0.5,abc,-12.5,1.5,0,-2,w\n",
+        )
+        .unwrap();
+        let w = log.rows[0].measured.expect("a measured wrench");
+        assert_eq!((w.force_n, w.torque_nmm), ([0.5, -0.25, -12.5], [1.5, 0.0, -2.0]));
+        assert_eq!(log.rows[0].extra.keys().collect::<Vec<_>>(), ["note"], "the wrench is not an extra column");
+        assert_eq!(log.rows[1].measured, None);
+        assert_eq!(log.rows.len(), 2);
+        let bad: Vec<String> = log.bad.iter().map(|e| e.to_string()).collect();
+        assert!(bad[0].contains("s/captures.csv: line 4") && bad[0].contains("fy_n"), "{bad:?}");
+        assert!(bad[1].contains("line 5") && bad[1].contains("fy_n") && bad[1].contains("abc"), "{bad:?}");
+        let again = parse(&CaptureLog::to_csv(&log.rows)).unwrap();
+        assert_eq!(again.rows, log.rows);
+        let e = parse("frame,split,trial,a_deg,b_deg,c_deg,z_mm,fx_n,fy_n\nf.png,train,1,0,0,0,0,1,2\n").unwrap_err();
+        let e = e.to_string();
+        assert!(e.contains("s/captures.csv") && e.contains("fz_n") && e.contains("tz_nmm"), "{e}");
     }
 
     #[test]

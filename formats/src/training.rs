@@ -25,6 +25,10 @@ pub struct EpochMetrics {
     pub bad_val_samples: usize,
     #[serde(deserialize_with = "nan_if_null")]
     pub seconds: f64,
+    /// Mean per-image pressure L1 (kPa, useful pixels, network resolution) of a network with
+    /// the pressure output.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub val_pressure_l1_kpa: Option<f64>,
 }
 
 /// A number, or NaN for `null` (what serde_json writes for a NaN or an infinity).
@@ -115,6 +119,7 @@ mod tests {
                 bad_samples: 0,
                 bad_val_samples: 0,
                 seconds: 3.0,
+                val_pressure_l1_kpa: Some(4.5),
             }],
             test: Some(TestError { l1_mm: 0.15, images: 12 }),
             test_missing: None,

@@ -39,6 +39,17 @@ pub struct ImageErrors {
     /// The zero predictor's over the same pixels (mm).
     pub zero_boundary_l1_mm: f64,
     pub boundary_pixels: usize,
+    /// The force figures of a bundle with the pressure output, for a sample with a wrench
+    /// label ([`ImageErrors::with_force`]); NaN otherwise. The true total force |F| (N).
+    pub force_n: f64,
+    /// The predicted |F| (N).
+    pub pred_force_n: f64,
+    /// |F_pred - F_true| (N): direction and size.
+    pub force_error_n: f64,
+    /// ||F_pred| - |F_true|| (N): the total normal force's error.
+    pub force_magnitude_error_n: f64,
+    /// Mean absolute pressure error over useful pixels (kPa), where the sample has a pressure map.
+    pub pressure_l1_kpa: f64,
 }
 
 /// Crop pixels on either side of a true contact edge that count as the contact boundary.
@@ -137,7 +148,38 @@ impl ImageErrors {
             boundary_l1_mm: per_boundary(bl1),
             zero_boundary_l1_mm: per_boundary(bzero),
             boundary_pixels: nb,
+            force_n: f64::NAN,
+            pred_force_n: f64::NAN,
+            force_error_n: f64::NAN,
+            force_magnitude_error_n: f64::NAN,
+            pressure_l1_kpa: f64::NAN,
         }
+    }
+
+    /// Adds the force figures: `pred` against the sample's wrench and, where it has one, its
+    /// pressure map (kPa, crop grid; over the `mask`'s pixels).
+    pub fn with_force(
+        mut self,
+        pred: &crate::Force,
+        truth: &sensor::Wrench,
+        pressure: Option<&[f32]>,
+        mask: &[bool],
+    ) -> Self {
+        self.force_n = truth.force_magnitude_n();
+        self.pred_force_n = pred.wrench.force_magnitude_n();
+        self.force_error_n = pred.wrench.force_distance_n(truth);
+        self.force_magnitude_error_n = (self.pred_force_n - self.force_n).abs();
+        if let Some(p) = pressure {
+            let (mut n, mut sum) = (0usize, 0f64);
+            for ((&a, &b), &m) in pred.pressure.pressure_kpa.iter().zip(p).zip(mask) {
+                if m {
+                    n += 1;
+                    sum += (a - b).abs() as f64;
+                }
+            }
+            self.pressure_l1_kpa = sum / n.max(1) as f64;
+        }
+        self
     }
 }
 
@@ -160,6 +202,48 @@ pub struct SplitStats {
     pub skipped_frames: usize,
     /// Of those, frames whose ground truth has contact: answered with zeros by mistake.
     pub gated_contact_frames: usize,
+    /// The force figures, for a bundle with the pressure output and samples with wrench labels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force: Option<ForceStats>,
+}
+
+/// A split's force figures (see [`ImageErrors`]'s force fields).
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
+pub struct ForceStats {
+    /// The true total force |F| (N).
+    pub force_n: Summary,
+    pub force_error_n: Summary,
+    pub force_magnitude_error_n: Summary,
+    /// The mean total-force error as a percentage of the split's mean total force.
+    pub force_magnitude_error_pct: f64,
+    pub pressure_l1_kpa: Summary,
+}
+
+impl ForceStats {
+    fn of(images: &[ImageErrors]) -> Option<Self> {
+        let s = |f: fn(&ImageErrors) -> f64| Summary::of(images.iter().map(f));
+        let force_n = s(|e| e.force_n);
+        let magnitude = s(|e| e.force_magnitude_error_n);
+        (force_n.n > 0).then(|| ForceStats {
+            force_magnitude_error_pct: 100.0 * magnitude.mean / force_n.mean,
+            force_error_n: s(|e| e.force_error_n),
+            force_magnitude_error_n: magnitude,
+            pressure_l1_kpa: s(|e| e.pressure_l1_kpa),
+            force_n,
+        })
+    }
+
+    /// The split's force headline.
+    pub fn headline(&self) -> String {
+        format!(
+            "total force error {:.3} N ({:.1} % of the mean {:.2} N), force vector error {:.3} N, pressure L1 {:.2} kPa",
+            self.force_magnitude_error_n.mean,
+            self.force_magnitude_error_pct,
+            self.force_n.mean,
+            self.force_error_n.mean,
+            self.pressure_l1_kpa.mean
+        )
+    }
 }
 
 impl SplitStats {
@@ -189,6 +273,7 @@ impl SplitStats {
             zero_boundary_l1_mm: s(|e| e.zero_boundary_l1_mm),
             skipped_frames,
             gated_contact_frames,
+            force: ForceStats::of(images),
         }
     }
 
@@ -243,7 +328,7 @@ pub fn evaluate_dataset(
     let crop = predictor.file.sensor.crop_size_px;
     let mut stats = BTreeMap::new();
     let mut rows = Vec::new();
-    let mut groups = Vec::new();
+    let (mut groups, mut force_groups) = (Vec::new(), Vec::new());
     for &split in splits {
         let name = split.name();
         let (mut errors, mut skipped, mut gated_contact) = (Vec::new(), 0, 0);
@@ -276,12 +361,29 @@ pub fn evaluate_dataset(
                     truth.size_px
                 );
             }
-            let (pred, ran) = predictor.predict_gated(&frame).with_context(|| format!("{}", image_path.display()))?;
-            if !ran {
+            let pred = predictor.predict_all(&frame).with_context(|| format!("{}", image_path.display()))?;
+            if !pred.network_ran {
                 skipped += 1;
                 gated_contact += usize::from(truth.depth_mm.iter().any(|&d| d > sensor::CONTACT_THRESHOLD_MM));
             }
-            errors.push(ImageErrors::of(id, split, &pred.depth_mm, &truth.depth_mm, &predictor.mask));
+            let mut e = ImageErrors::of(id, split, &pred.depth.depth_mm, &truth.depth_mm, &predictor.mask);
+            if let (Some(force), Some(wrench)) = (&pred.force, s.force_label()) {
+                let pressure = match &s.pressure {
+                    Some(rel) => Some(sensor::PressureMap::load_png(&data.join(rel))?),
+                    None => None,
+                };
+                if let Some(p) = &pressure
+                    && p.size_px != crop
+                {
+                    anyhow::bail!(
+                        "{}: pressure map is {}x{0}, the bundle's crop is {crop}",
+                        data.join(s.pressure.as_ref().unwrap()).display(),
+                        p.size_px
+                    );
+                }
+                e = e.with_force(force, wrench, pressure.as_ref().map(|p| p.pressure_kpa.as_slice()), &predictor.mask);
+            }
+            errors.push(e);
             if (k + 1) % 50 == 0 {
                 eprintln!("{name}: {}/{}", k + 1, chosen.len());
             }
@@ -294,7 +396,11 @@ pub fn evaluate_dataset(
             s.headline(),
             s.l2_mm.mean
         );
+        if let Some(f) = &s.force {
+            println!("{name:5}: {} images with force labels, {}", f.force_n.n, f.headline());
+        }
         groups.push((name, errors.iter().map(|e| e.l1_mm).collect::<Vec<_>>()));
+        force_groups.push((name, errors.iter().map(|e| e.force_error_n).collect::<Vec<_>>()));
         stats.insert(split, s);
         rows.extend(errors);
     }
@@ -312,6 +418,11 @@ pub fn evaluate_dataset(
         "boundary_l1_mm",
         "zero_boundary_l1_mm",
         "boundary_pixels",
+        "force_n",
+        "pred_force_n",
+        "force_error_n",
+        "force_magnitude_error_n",
+        "pressure_l1_kpa",
     ])?;
     for e in &rows {
         csv.write_record([
@@ -326,16 +437,29 @@ pub fn evaluate_dataset(
             e.boundary_l1_mm.to_string(),
             e.zero_boundary_l1_mm.to_string(),
             e.boundary_pixels.to_string(),
+            e.force_n.to_string(),
+            e.pred_force_n.to_string(),
+            e.force_error_n.to_string(),
+            e.force_magnitude_error_n.to_string(),
+            e.pressure_l1_kpa.to_string(),
         ])?;
     }
     let csv = csv.into_inner().map_err(|e| anyhow::anyhow!("errors.csv: {e}"))?;
     let groups: Vec<(&str, Vec<f64>)> = groups.into_iter().collect();
     let violin = crate::plot::violin_svg(&groups)?;
+    let with_force = stats.values().any(|s: &SplitStats| s.force.is_some());
+    let force_violin = match with_force {
+        true => Some(crate::plot::violin_svg_on(&force_groups, &crate::plot::ViolinAxis::force())?),
+        false => None,
+    };
     // The three files replace a previous evaluation together, or not at all.
     formats::fs::write_dir_atomic(out, |tmp| -> Result<()> {
         write_atomic(&tmp.join("stats.json"), stats_json.as_bytes())?;
         write_atomic(&tmp.join("errors.csv"), &csv)?;
         write_atomic(&tmp.join("violin.svg"), violin.as_bytes())?;
+        if let Some(svg) = &force_violin {
+            write_atomic(&tmp.join("force_violin.svg"), svg.as_bytes())?;
+        }
         formats::output::mark(tmp, OutputKind::Evaluation)?;
         Ok(())
     })?;

@@ -15,5 +15,5 @@ pub mod refresh;
 pub mod stream;
 
 pub use cloud::{PointCloud, write_ply};
-pub use predictor::{InferError, Predictor};
+pub use predictor::{Force, InferError, Prediction, Predictor};
 pub use refresh::{ReferenceKeeper, RefreshConfig};

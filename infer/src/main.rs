@@ -22,31 +22,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Predict one frame: 16-bit micrometre depth PNG, false-colour PNG, PLY point cloud.
-    Predict {
-        /// The bundle folder (`train export`).
-        #[arg(long)]
-        bundle: PathBuf,
-        /// A camera frame (PNG or JPEG): the camera's full frame, cut around the bundle's
-        /// calibrated optical centre, or the sensor's crop as the dataset stores it.
-        #[arg(long)]
-        image: PathBuf,
-        /// Depth map to write: 16-bit PNG, micrometres, on the sensor's crop.
-        #[arg(long)]
-        depth_out: Option<PathBuf>,
-        /// False-colour depth for people.
-        #[arg(long)]
-        colour_out: Option<PathBuf>,
-        /// Point cloud of the contact patch (sensor frame, mm).
-        #[arg(long)]
-        ply: Option<PathBuf>,
-        /// Run the network even when the frame shows no contact.
-        #[arg(long)]
-        always: bool,
-        /// Keep the network's own reading of the reference frame (by default subtracted).
-        #[arg(long)]
-        no_tare: bool,
-    },
+    /// Predict one frame: 16-bit micrometre depth PNG, false-colour PNG, PLY point cloud, and
+    /// with a force bundle the contact pressure and wrench.
+    Predict(PredictArgs),
     /// Per-image errors in mm over a dataset's split(s): stats.json, errors.csv, violin.svg.
     Eval {
         /// The bundle folder (`train export`).
@@ -145,33 +123,34 @@ fn eval(bundle: PathBuf, data: PathBuf, split: String, out: PathBuf, no_tare: bo
     Ok(())
 }
 
-fn predict(
-    bundle: PathBuf,
-    image: PathBuf,
-    depth_out: Option<PathBuf>,
-    colour_out: Option<PathBuf>,
-    ply: Option<PathBuf>,
-    always: bool,
-    no_tare: bool,
-) -> Result<()> {
+fn predict(args: PredictArgs) -> Result<()> {
+    let PredictArgs { bundle, image, depth_out, colour_out, ply, pressure_out, always, no_tare } = args;
     // Outputs are checked before any work: none may be an input, none named twice.
     let outputs: Vec<&std::path::Path> =
-        [&depth_out, &colour_out, &ply].into_iter().flatten().map(|p| p.as_path()).collect();
+        [&depth_out, &colour_out, &ply, &pressure_out].into_iter().flatten().map(|p| p.as_path()).collect();
     let inputs = [image.as_path(), bundle.as_path()];
     for out in &outputs {
         formats::output::check_file(out, &inputs)?;
     }
     formats::output::check_distinct(&outputs)?;
     let predictor = load(&bundle, &model::backend::default_device(), no_tare)?;
+    if pressure_out.is_some() && !predictor.has_force() {
+        anyhow::bail!(
+            "{}: this bundle's network has no force output, so there is no pressure to write (train with \
+             --force-weight)",
+            bundle.display()
+        );
+    }
     let frame = predictor.read_frame(&image)?;
     let start = Instant::now();
-    let depth = if always {
-        predictor.predict_network(std::slice::from_ref(&frame)).map(|mut v| v.remove(0))
+    let prediction = if always {
+        predictor.predict_network_all(std::slice::from_ref(&frame)).map(|mut v| v.remove(0))
     } else {
-        predictor.predict(&frame)
+        predictor.predict_all(&frame)
     }
     .with_context(|| format!("{}", image.display()))?;
     let ms = start.elapsed().as_secs_f64() * 1e3;
+    let depth = prediction.depth;
     let contact = Predictor::contact_mask(&depth, CONTACT_THRESHOLD_MM);
     let pressed = contact.iter().filter(|&&c| c).count();
     println!(
@@ -180,8 +159,14 @@ fn predict(
         100.0 * pressed as f64 / predictor.mask.iter().filter(|&&m| m).count().max(1) as f64,
         depth.max_mm()
     );
+    if let Some(force) = &prediction.force {
+        println!("{}", infer::predictor::force_line(force));
+    }
     // Every output is made first, then all are written together: a failure leaves none.
     let mut files: Vec<(&std::path::Path, Vec<u8>)> = Vec::new();
+    if let (Some(path), Some(force)) = (&pressure_out, &prediction.force) {
+        files.push((path, force.pressure.to_png()));
+    }
     if let Some(path) = &depth_out {
         files.push((path, depth.to_png_um()));
     }
@@ -202,6 +187,37 @@ fn predict(
         println!("the point cloud has {} points", cloud.points_mm.len());
     }
     Ok(())
+}
+
+/// What `infer predict` is told.
+#[derive(clap::Args)]
+struct PredictArgs {
+    /// The bundle folder (`train export`).
+    #[arg(long)]
+    bundle: PathBuf,
+    /// A camera frame (PNG or JPEG): the camera's full frame, cut around the bundle's
+    /// calibrated optical centre, or the sensor's crop as the dataset stores it.
+    #[arg(long)]
+    image: PathBuf,
+    /// Depth map to write: 16-bit PNG, micrometres, on the sensor's crop.
+    #[arg(long)]
+    depth_out: Option<PathBuf>,
+    /// False-colour depth for people.
+    #[arg(long)]
+    colour_out: Option<PathBuf>,
+    /// Point cloud of the contact patch (sensor frame, mm).
+    #[arg(long)]
+    ply: Option<PathBuf>,
+    /// Contact pressure to write (a bundle with the force output): 16-bit PNG, 0.1 kPa a
+    /// step, on the sensor's crop (the dataset's pressure format).
+    #[arg(long)]
+    pressure_out: Option<PathBuf>,
+    /// Run the network even when the frame shows no contact.
+    #[arg(long)]
+    always: bool,
+    /// Keep the network's own reading of the reference frame (by default subtracted).
+    #[arg(long)]
+    no_tare: bool,
 }
 
 /// What `infer stream` is told.
@@ -406,9 +422,7 @@ fn main() -> ExitCode {
     model::backend::cpu_unless_asked();
     sensor::alloc::keep_freed_memory();
     let result = match Cli::parse().command {
-        Command::Predict { bundle, image, depth_out, colour_out, ply, always, no_tare } => {
-            predict(bundle, image, depth_out, colour_out, ply, always, no_tare)
-        }
+        Command::Predict(args) => predict(args),
         Command::Eval { bundle, data, split, out, no_tare } => eval(bundle, data, split, out, no_tare),
         Command::Stream(args) => stream(args),
         Command::Bench { bundle, image, device, repeats } => bench(bundle, image, device, repeats),

@@ -40,18 +40,57 @@ fn density(sorted: &[f64], min_bw: f64, steps: usize) -> Vec<(f64, f64)> {
     dens.into_iter().map(|(t, d)| (t, d / peak)).collect()
 }
 
+/// What a violin plot shows: its caption, its value axis, and a dashed reference line.
+pub struct ViolinAxis {
+    pub caption: &'static str,
+    pub y_desc: &'static str,
+    /// The line's value and its label.
+    pub reference: (f64, String),
+}
+
+impl ViolinAxis {
+    /// Per-image depth L1 (mm) against the ground truth's uncertainty, as in the paper.
+    pub fn depth() -> Self {
+        ViolinAxis {
+            caption: "Per-image mean L1 error over useful pixels",
+            y_desc: "L1 (mm)",
+            reference: (
+                GROUND_TRUTH_UNCERTAINTY_MM,
+                format!("ground-truth uncertainty {GROUND_TRUTH_UNCERTAINTY_MM} mm"),
+            ),
+        }
+    }
+
+    /// Per-image force error (N) against DenseTact 2.0's reported 0.41 N.
+    pub fn force() -> Self {
+        ViolinAxis {
+            caption: "Per-image contact force error |F - F_true|",
+            y_desc: "force error (N)",
+            reference: (DENSETACT2_FORCE_ERROR_N, format!("DenseTact 2.0: {DENSETACT2_FORCE_ERROR_N} N")),
+        }
+    }
+}
+
+/// The force error DenseTact 2.0 reports (N), the figure this sensor's force is read against.
+pub const DENSETACT2_FORCE_ERROR_N: f64 = 0.41;
+
 /// A violin per named split of per-image L1 (mm): density outline, quartile bar, median dot and
 /// mean tick, with the ground truth's uncertainty as a dashed line, as in the paper's figure.
 pub fn violin_svg(groups: &[(&str, Vec<f64>)]) -> Result<String> {
+    violin_svg_on(groups, &ViolinAxis::depth())
+}
+
+/// [`violin_svg`] on another axis.
+pub fn violin_svg_on(groups: &[(&str, Vec<f64>)], axis: &ViolinAxis) -> Result<String> {
     let all = groups.iter().flat_map(|g| g.1.iter().copied()).filter(|v| v.is_finite());
-    let y_max = all.fold(GROUND_TRUTH_UNCERTAINTY_MM, f64::max) * 1.15;
+    let y_max = all.fold(axis.reference.0, f64::max) * 1.15;
     let n = groups.len().max(1) as f64;
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (640, 440)).into_drawing_area();
         root.fill(&WHITE).map_err(err)?;
         let mut chart = ChartBuilder::on(&root)
-            .caption("Per-image mean L1 error over useful pixels", ("sans-serif", 18))
+            .caption(axis.caption, ("sans-serif", 18))
             .margin(12)
             .x_label_area_size(36)
             .y_label_area_size(64)
@@ -61,7 +100,7 @@ pub fn violin_svg(groups: &[(&str, Vec<f64>)]) -> Result<String> {
             .configure_mesh()
             .disable_x_mesh()
             .x_labels(0)
-            .y_desc("L1 (mm)")
+            .y_desc(axis.y_desc)
             .y_label_formatter(&|v| format!("{v:.3}"))
             .draw()
             .map_err(err)?;
@@ -106,13 +145,13 @@ pub fn violin_svg(groups: &[(&str, Vec<f64>)]) -> Result<String> {
                 )))
                 .map_err(err)?;
         }
-        let u = GROUND_TRUTH_UNCERTAINTY_MM;
+        let u = axis.reference.0;
         chart
             .draw_series(DashedLineSeries::new(vec![(0.0, u), (n, u)], 6, 4, UNCERTAINTY.stroke_width(1)))
             .map_err(err)?;
         chart
             .draw_series(std::iter::once(Text::new(
-                format!("ground-truth uncertainty {u} mm"),
+                axis.reference.1.clone(),
                 (0.02, u),
                 ("sans-serif", 13)
                     .into_font()

@@ -7,7 +7,7 @@ use image::RgbImage;
 use model::DenseDepth;
 use model::InputEncoder;
 use model::bundle::{BundleFile, load_bundle};
-use sensor::DepthMap;
+use sensor::{DepthMap, DomeAreas, PressureMap, Wrench};
 
 #[derive(Debug, thiserror::Error)]
 pub enum InferError {
@@ -24,6 +24,36 @@ pub enum InferError {
 /// When a frame counts as untouched: fewer than `min_pixels` useful pixels differ from the
 /// reference image by more than `grey_levels` (mean over the channels).
 pub use sensor::gate::ContactGate;
+
+/// A frame's contact force, from a bundle whose network has the pressure output.
+#[derive(Clone, Debug)]
+pub struct Force {
+    /// Contact pressure (kPa) on the crop's grid: zero outside the useful disk and wherever
+    /// the predicted depth is below `sensor::CONTACT_THRESHOLD_MM` (no contact, no pressure).
+    pub pressure: PressureMap,
+    /// The pressure's resultant on the sensor (sensor frame).
+    pub wrench: Wrench,
+}
+
+/// One line for people: the force, its components and the peak pressure.
+pub fn force_line(force: &Force) -> String {
+    let [fx, fy, fz] = force.wrench.force_n;
+    let peak = force.pressure.pressure_kpa.iter().fold(0f32, |m, &p| m.max(p));
+    format!(
+        "force {:.3} N (fx {fx:.3}, fy {fy:.3}, fz {fz:.3} N, sensor frame), peak pressure {peak:.1} kPa",
+        force.wrench.force_magnitude_n()
+    )
+}
+
+/// Everything the network gives for one frame.
+#[derive(Clone, Debug)]
+pub struct Prediction {
+    pub depth: DepthMap,
+    /// Where the bundle has the pressure output.
+    pub force: Option<Force>,
+    /// Whether the network ran (false: the contact gate found no contact, and the maps are zero).
+    pub network_ran: bool,
+}
 
 /// A loaded bundle, ready to turn frames into depth maps.
 #[derive(Clone)]
@@ -51,6 +81,11 @@ pub struct Predictor {
     /// prediction, as a scale is tared: what the network reads into an untouched membrane is
     /// its bias, not contact. `None` without a reference image or after [`Predictor::set_tare`]`(None)`.
     tare_mm: Option<Vec<f32>>,
+    /// The same for the pressure output (kPa, output grid).
+    tare_kpa: Option<Vec<f32>>,
+    /// The dome area each crop pixel sees, for the pressure's resultant (a bundle with the
+    /// pressure output).
+    areas: Option<std::sync::Arc<DomeAreas>>,
     /// Takes each frame's global drift against the reference ([`sensor::gate::Balance`]: an LED
     /// warming, auto exposure, white balance) out before the network reads it, so that it reads
     /// the colours it was trained on. On by default; without a reference there is nothing to
@@ -79,7 +114,6 @@ impl Predictor {
         let mut predictor = Predictor {
             dir: dir.to_path_buf(),
             net: net.folded(),
-            file,
             device: device.clone(),
             reference: None,
             mask,
@@ -88,7 +122,10 @@ impl Predictor {
             encoder,
             border_fill,
             tare_mm: None,
+            tare_kpa: None,
+            areas: file.model.pressure.then(|| std::sync::Arc::new(DomeAreas::new(&file.sensor))),
             balance_input: true,
+            file,
         };
         predictor.reference = reference;
         let reference = predictor.reference.clone();
@@ -100,9 +137,12 @@ impl Predictor {
     /// depth from now on; `None` turns the tare off. One network pass.
     pub fn set_tare(&mut self, frame: Option<&RgbImage>) -> Result<(), InferError> {
         // Worked out before anything changes: a frame that fails leaves the tare as it was.
-        self.tare_mm = match frame {
-            Some(frame) => Some(self.output_mm(self.net.forward(self.input(std::slice::from_ref(frame))?))),
-            None => None,
+        (self.tare_mm, self.tare_kpa) = match frame {
+            Some(frame) => {
+                let heads = self.net.forward_heads(self.input(std::slice::from_ref(frame))?);
+                (Some(self.output_mm(heads.depth)), heads.pressure.map(output_kpa))
+            }
+            None => (None, None),
         };
         Ok(())
     }
@@ -184,23 +224,86 @@ impl Predictor {
     /// [`predict_gated`](Self::predict_gated) for a frame known to be the crop: one that
     /// [`accept_frame`](Self::accept_frame) returned, whose size is not checked again.
     pub(crate) fn predict_crop(&self, frame: &RgbImage) -> (DepthMap, bool) {
-        if !self.has_contact(frame) {
-            return (DepthMap::zeros(self.file.sensor.crop_size_px), false);
-        }
-        (self.network_on_crops(std::slice::from_ref(frame)).remove(0), true)
+        let p = self.predict_all_crop(frame);
+        (p.depth, p.network_ran)
     }
 
     /// The network's depth maps for a batch of frames (no contact gate).
     pub fn predict_network(&self, frames: &[RgbImage]) -> Result<Vec<DepthMap>, InferError> {
-        frames.iter().try_for_each(|f| self.check(f))?;
-        Ok(self.network_on_crops(frames))
+        Ok(self.predict_network_all(frames)?.into_iter().map(|p| p.depth).collect())
     }
 
-    fn network_on_crops(&self, frames: &[RgbImage]) -> Vec<DepthMap> {
+    /// Whether the bundle's network reports contact force (the pressure output).
+    pub fn has_force(&self) -> bool {
+        self.areas.is_some()
+    }
+
+    /// Depth and, where the bundle has the pressure output, the contact force, behind the
+    /// contact gate as [`predict`](Self::predict) is.
+    pub fn predict_all(&self, frame: &RgbImage) -> Result<Prediction, InferError> {
+        self.check(frame)?;
+        Ok(self.predict_all_crop(frame))
+    }
+
+    /// [`predict_all`](Self::predict_all) for a frame [`accept_frame`](Self::accept_frame) returned.
+    pub(crate) fn predict_all_crop(&self, frame: &RgbImage) -> Prediction {
+        if !self.has_contact(frame) {
+            let depth = DepthMap::zeros(self.file.sensor.crop_size_px);
+            let force = self.areas.as_ref().map(|_| Force {
+                pressure: PressureMap { size_px: depth.size_px, pressure_kpa: vec![0.0; depth.depth_mm.len()] },
+                wrench: Wrench::default(),
+            });
+            return Prediction { depth, force, network_ran: false };
+        }
+        self.all_on_crops(std::slice::from_ref(frame)).remove(0)
+    }
+
+    /// [`predict_all`](Self::predict_all) for a batch of frames, without the contact gate.
+    pub fn predict_network_all(&self, frames: &[RgbImage]) -> Result<Vec<Prediction>, InferError> {
+        frames.iter().try_for_each(|f| self.check(f))?;
+        Ok(self.all_on_crops(frames))
+    }
+
+    fn all_on_crops(&self, frames: &[RgbImage]) -> Vec<Prediction> {
         if frames.is_empty() {
             return Vec::new();
         }
-        self.depth_maps(self.net.forward(self.input_of_crops(frames)))
+        let heads = self.net.forward_heads(self.input_of_crops(frames));
+        let depths = self.depth_maps(heads.depth);
+        let forces: Vec<Option<Force>> = match heads.pressure {
+            Some(p) => self.forces(p, &depths).into_iter().map(Some).collect(),
+            None => vec![None; depths.len()],
+        };
+        depths.into_iter().zip(forces).map(|(depth, force)| Prediction { depth, force, network_ran: true }).collect()
+    }
+
+    /// The pressure output (network units) to pressure maps (kPa) on the crop's grid, each
+    /// tared, filled at the border and resized as its depth map is, kept only where that depth
+    /// map shows contact, and their resultants.
+    fn forces(&self, out: Tensor<4>, depths: &[DepthMap]) -> Vec<Force> {
+        let [_, _, oh, ow] = out.dims();
+        let crop = self.file.sensor.crop_size_px;
+        let areas = self.areas.as_ref().expect("a network with the pressure output has its areas");
+        output_kpa(out)
+            .chunks_mut(oh * ow)
+            .zip(depths)
+            .map(|(kpa, depth)| {
+                if let Some(tare) = &self.tare_kpa {
+                    kpa.iter_mut().zip(tare).for_each(|(v, t)| *v -= t);
+                }
+                if self.border_fill.len() == kpa.len() {
+                    self.border_fill.apply(kpa);
+                }
+                let full = sensor::resample::resize_plane(kpa, [oh, ow], [crop as usize, crop as usize]);
+                let pressure_kpa = full
+                    .iter()
+                    .zip(&depth.depth_mm)
+                    .map(|(&p, &d)| if d > sensor::CONTACT_THRESHOLD_MM { p.max(0.0) } else { 0.0 })
+                    .collect::<Vec<f32>>();
+                let wrench = areas.wrench(&pressure_kpa);
+                Force { pressure: PressureMap { size_px: crop, pressure_kpa }, wrench }
+            })
+            .collect()
     }
 
     /// The network's input for a batch of frames: resized, RGB, values / 255 (and the
@@ -286,4 +389,10 @@ impl Predictor {
     pub fn contact_mask(depth: &DepthMap, threshold_mm: f32) -> Vec<bool> {
         depth.contact_px(threshold_mm)
     }
+}
+
+/// The pressure output (network units) in kPa, planes one after another.
+fn output_kpa(out: Tensor<4>) -> Vec<f32> {
+    let values: Vec<f32> = out.into_data().try_to_vec::<f32>().expect("f32 output");
+    values.into_iter().map(|v| v * model::PRESSURE_KPA_PER_UNIT).collect()
 }

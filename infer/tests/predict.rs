@@ -6,33 +6,12 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use common::{bundle, bundle_file, pressed};
+use common::{bundle, bundle_file, dataset_of, pressed};
 
 use dataset::{Renderer, SensorUnit};
 use infer::Predictor;
 use model::bundle::{BundleFile, write_bundle};
 use model::{DenseDepthConfig, DenseNetConfig};
-
-/// `count` samples of the procedural kit with `renderer`'s unit's images in `data`.
-fn dataset_of(renderer: &Renderer, data: &Path, count: u32, test_fraction: f32) {
-    let kit = dataset::Kit::procedural(25.0);
-    let params = formats::dataset::GeneratorParams {
-        unit: Some(3),
-        test_fraction,
-        ..formats::dataset::GeneratorParams::new(4, count, &kit.source)
-    };
-    let unit = renderer.unit().clone();
-    dataset::generate::Generator {
-        out: data.to_path_buf(),
-        sensor: &unit.sensor,
-        kit: &kit,
-        params,
-        skipping: dataset::Skipping::On,
-        renderer: Some(renderer),
-    }
-    .run()
-    .unwrap();
-}
 
 /// `infer eval` of `bundle` on `data`'s `split` into `out`.
 fn eval(bundle: &Path, data: &Path, split: &str, out: &Path) -> std::process::Output {

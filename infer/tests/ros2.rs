@@ -40,6 +40,7 @@ fn a_subscriber_receives_predicts_cloud_depth_and_summary() {
         contact_pixels,
         cloud: &cloud,
         network_ran: true,
+        force: None,
     };
 
     // A domain and a namespace of this run's own, so that other DDS traffic cannot answer.

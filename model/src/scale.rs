@@ -1,4 +1,5 @@
-//! Depth in millimetres <-> network units: the one place the mapping lives.
+//! Depth in millimetres <-> network units: the one place the mapping lives (and the pressure's,
+//! a fixed number of kPa per unit).
 //!
 //! The paper rescales its 8-bit depth (0..255 over 0..max depth) to 10..1000 for training;
 //! here the same linear map goes straight from millimetres.
@@ -58,6 +59,11 @@ impl DepthScale {
         net.sub_scalar(self.net_min).mul_scalar(self.max_depth_mm / self.range())
     }
 }
+
+/// Contact pressure in network units: one unit is this many kPa. Contacts of the kit on the
+/// paper's silicone peak at tens to a few hundred kPa, so the pressure channel's targets span
+/// about the depth's `UNIT_NET_RANGE` and one loss weight serves both.
+pub const PRESSURE_KPA_PER_UNIT: f32 = 100.0;
 
 /// A scale that maps no depth range: not finite, no positive depth, or an empty range.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]

@@ -19,7 +19,7 @@ fn tiny_densedepth_matches_pytorch_in_eval_mode() {
     let input = io.tensor::<4>("input", &device);
     let (want, shape) = io.get("output");
     for mode in [Upsample::Native, Upsample::Matmul] {
-        let out = imported.model.forward_with(input.clone(), mode);
+        let out = imported.model.forward_with(input.clone(), mode).depth;
         assert_eq!(out.dims().to_vec(), shape);
         let (abs, rel) = errors(&to_vec(out), &want);
         assert!(rel <= 1e-4, "{mode:?}: max_abs_err={abs} max_rel_err={rel}");

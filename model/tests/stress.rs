@@ -125,7 +125,7 @@ fn a_training_step_at_any_input_size_gives_finite_gradients() {
         let [oh, ow] = config.output_hw(hw);
         let images = Tensor::<4>::random([1, 3, hw[0], hw[1]], Distribution::Uniform(0.0, 1.0), &d);
         let target = Tensor::<4>::random([1, 1, oh, ow], Distribution::Uniform(10.0, 1000.0), &d);
-        let pred = model.forward_with(images, mode);
+        let pred = model.forward_with(images, mode).depth;
         assert_eq!(pred.dims(), [1, 1, oh, ow]);
         let loss = DepthLossConfig::new().forward(pred, target).total;
         let grads = loss.backward();

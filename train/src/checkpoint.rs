@@ -227,6 +227,7 @@ mod stop_tests {
                 bad_samples: 0,
                 bad_val_samples: 0,
                 seconds,
+                val_pressure_l1_kpa: None,
             })
             .collect();
         s

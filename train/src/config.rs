@@ -90,6 +90,15 @@ pub struct FitConfig {
     /// read units it never saw. Default false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub vary_look: bool,
+    /// Weight of the pressure output's term in the loss (`model::DepthLossConfig::pressure_weight`);
+    /// above zero the network gets the pressure output and trains on the samples' pressure
+    /// maps. Default 0: depth only.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub force_weight: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 fn one() -> f64 {
@@ -118,6 +127,8 @@ impl FitConfig {
     /// The defaults of the settings no recipe sets: `FitConfig::new` and the command line's
     /// defaults are these (one definition of each).
     pub const DEFAULT_SEED: u64 = 0;
+    /// `--force-weight` where the network has (or the recipe gives it) a pressure output.
+    pub const DEFAULT_FORCE_WEIGHT: f64 = 1.0;
     pub const DEFAULT_CHECKPOINT_EVERY: u64 = 50;
     pub const DEFAULT_ON_BAD_DATA: OnBadData = OnBadData::Stop;
     pub const DEFAULT_MAX_BAD_STEPS: u64 = 5;
@@ -146,6 +157,7 @@ impl FitConfig {
             max_minutes: None,
             more_data: Vec::new(),
             vary_look: false,
+            force_weight: 0.0,
         }
     }
 
@@ -183,6 +195,12 @@ impl FitConfig {
             "a finite number at least 0",
             self.contact_weight.to_string(),
         )?;
+        check(
+            self.force_weight.is_finite() && self.force_weight >= 0.0,
+            "--force-weight",
+            "a finite number at least 0",
+            self.force_weight.to_string(),
+        )?;
         check(self.patience != Some(0), "--patience", "at least 1", "0".into())?;
         check(
             self.patience.is_none() || self.val_fraction > 0.0,
@@ -217,6 +235,7 @@ impl FitConfig {
             .with_dynamic_range(scale.range() as f64)
             .with_contact_weight(self.contact_weight)
             .with_contact_above(scale.to_net(sensor::CONTACT_THRESHOLD_MM) as f64)
+            .with_pressure_weight(self.force_weight)
     }
 
     /// The learning rate of (1-based) step `step` of `total` steps.

@@ -16,7 +16,7 @@ use formats::SplitMix64;
 use formats::dataset::{Manifest, SampleRecord, Split};
 use image::RgbImage;
 use model::{DenseDepthConfig, DepthScale, InputChannels, InputEncoder, InputEncoding};
-use sensor::{DepthMap, Sensor};
+use sensor::{DepthMap, PressureMap, Sensor};
 
 /// A bad sample: the file and what is wrong with it.
 #[derive(Debug, thiserror::Error)]
@@ -38,6 +38,14 @@ pub struct DepthItem {
     pub image: Vec<f32>,
     /// [1, OH, OW] (the network's output size), network units.
     pub depth: Vec<f32>,
+    /// [1, OH, OW] contact pressure in network units (`model::PRESSURE_KPA_PER_UNIT`), for a
+    /// network with the pressure output and a sample that has a pressure map.
+    pub pressure: Option<Vec<f32>>,
+    /// The sample's force (N, sensor frame: measured where its capture has a measurement, else
+    /// labelled) and its unit's force per pressure unit on each output pixel where its depth
+    /// target shows contact (`[3, OH * OW]`, zero elsewhere), for a network with the pressure
+    /// output and a sample with a wrench.
+    pub force: Option<([f32; 3], Arc<Vec<f32>>)>,
     /// [OH * OW]: 1 where the output pixel lies wholly on the unit's useful pixels, else 0
     /// (units differ, so each item carries its own).
     pub mask: Arc<Vec<f32>>,
@@ -105,6 +113,9 @@ struct UnitFolder {
     /// Crops to the network's input; RGB until [`DepthDataset::set_model`] says otherwise.
     encoder: InputEncoder,
     mask: Arc<Vec<f32>>,
+    /// Force per pressure unit on each output pixel (`sensor::DomeAreas::force_per_kpa`);
+    /// computed for a network with the pressure output.
+    force_per_unit: Option<Arc<Vec<f32>>>,
 }
 
 /// The samples of one split of one or more dataset folders that have images: one unit's, or
@@ -125,6 +136,8 @@ pub struct DepthDataset {
     /// Whether a jittered item's look varies too ([`Jitter::look`]): training a base model
     /// for units it has not seen. Default false.
     pub vary_look: bool,
+    /// Whether items carry their pressure maps (a network with the pressure output).
+    pressure: bool,
     /// Samples decoded in an earlier epoch ([`DepthDataset::keep_decoded`]); shared by clones
     /// (the loader's threads), emptied when the samples or the model change.
     decoded: Arc<Mutex<DecodedCache>>,
@@ -136,11 +149,13 @@ pub struct DepthDataset {
 struct Decoded {
     image: RgbImage,
     depth: Vec<f32>,
+    pressure: Option<Vec<f32>>,
 }
 
 impl Decoded {
     fn bytes(&self) -> usize {
-        self.image.as_raw().len() + self.depth.len() * std::mem::size_of::<f32>()
+        let planes = self.depth.len() + self.pressure.as_ref().map_or(0, Vec::len);
+        self.image.as_raw().len() + planes * std::mem::size_of::<f32>()
     }
 }
 
@@ -197,6 +212,7 @@ impl DepthDataset {
                 mask: Arc::new(output_mask(&sensor, output_hw)),
                 reference: Some(dir.join("unit/reference.png")).filter(|p| p.is_file()),
                 encoder: InputEncoder::new(InputEncoding::new(InputChannels::Rgb), input_hw, None)?,
+                force_per_unit: None,
                 sensor,
             });
         }
@@ -210,6 +226,7 @@ impl DepthDataset {
             input_hw,
             output_hw,
             vary_look: false,
+            pressure: false,
             decoded: Arc::default(),
         })
     }
@@ -218,8 +235,19 @@ impl DepthDataset {
     /// each folder's `unit/reference.png`, which must then be there, at the gain fitted to how
     /// much contact changes that folder's train frames ([`InputEncoding::fitted`]): each unit's
     /// own, whichever split this is.
+    ///
+    /// A network with the pressure output reads each sample's pressure map; a split none of
+    /// whose samples has one is refused (regenerate or relabel with force labels).
     pub fn set_model(&mut self, model: &DenseDepthConfig) -> anyhow::Result<()> {
         self.output_hw = model.output_hw(self.input_hw);
+        self.pressure = model.pressure;
+        if model.pressure && !self.records.is_empty() && self.records.iter().all(|r| r.pressure.is_none()) {
+            anyhow::bail!(
+                "{}: no sample has a pressure map, which the network's force output trains on; generate or \
+                 label the dataset with force labels (the default), or train without --force-weight",
+                self.dir().join("manifest.json").display()
+            );
+        }
         for unit in &mut self.units {
             let reference = match (&unit.reference, model.input.needs_reference()) {
                 (Some(path), true) => Some(sensor::frame::read_reference(path, unit.sensor.crop_size_px)?),
@@ -239,6 +267,10 @@ impl DepthDataset {
             };
             unit.encoder = InputEncoder::new(encoding, self.input_hw, reference.as_ref())?;
             unit.mask = Arc::new(output_mask(&unit.sensor, self.output_hw));
+            unit.force_per_unit = model.pressure.then(|| {
+                let per_kpa = sensor::DomeAreas::new(&unit.sensor).force_per_kpa(self.output_hw);
+                Arc::new(per_kpa.into_iter().map(|v| v * model::PRESSURE_KPA_PER_UNIT).collect())
+            });
         }
         self.forget_decoded();
         Ok(())
@@ -348,7 +380,21 @@ impl DepthDataset {
                 }
             }
         });
-        Ok(DepthItem { image, depth: decoded.depth.clone(), mask: unit.mask.clone() })
+        Ok(DepthItem {
+            image,
+            depth: decoded.depth.clone(),
+            pressure: decoded.pressure.clone(),
+            force: unit.force_per_unit.as_ref().and_then(|w| {
+                let f = record.force_label()?.force_n;
+                // Only where the depth target shows contact: inference counts pressure there alone.
+                let contact = self.scale.to_net(sensor::CONTACT_THRESHOLD_MM);
+                let px = decoded.depth.len();
+                let masked =
+                    w.iter().enumerate().map(|(k, &v)| if decoded.depth[k % px] > contact { v } else { 0.0 }).collect();
+                Some(([f[0] as f32, f[1] as f32, f[2] as f32], Arc::new(masked)))
+            }),
+            mask: unit.mask.clone(),
+        })
     }
 
     /// Sample `i` read, checked and resized: the part of [`load`](Self::load) that is the same
@@ -375,9 +421,22 @@ impl DepthDataset {
             return Err(bad(&depth_path, format!("depth {d} mm is outside 0..{} mm", unit.sensor.max_depth_mm)));
         }
         let small = resize_plane(&depth.depth_mm, crop as usize, self.output_hw);
+        let pressure = match &record.pressure {
+            Some(rel) if self.pressure => {
+                let path = unit.dir.join(rel);
+                let map = PressureMap::load_png(&path).map_err(|e| bad(&path, e))?;
+                if map.size_px != crop {
+                    return Err(bad(&path, format!("pressure map is {0}x{0}, the crop is {crop}x{crop}", map.size_px)));
+                }
+                let small = resize_plane(&map.pressure_kpa, crop as usize, self.output_hw);
+                Some(small.iter().map(|&p| p / model::PRESSURE_KPA_PER_UNIT).collect())
+            }
+            _ => None,
+        };
         Ok(Decoded {
             image: model::input::resized(&img, self.input_hw),
             depth: small.iter().map(|&d| self.scale.to_net(d)).collect(),
+            pressure,
         })
     }
 }
@@ -412,6 +471,11 @@ pub struct DepthBatch {
     pub images: Tensor<4>,
     pub depths: Tensor<4>,
     pub masks: Tensor<4>,
+    /// Pressure targets and the mask of the pixels that have one (an item without a pressure
+    /// map counts nowhere), where any item has one.
+    pub pressures: Option<(Tensor<4>, Tensor<4>)>,
+    /// Force targets where any item has one (an item without counts nowhere).
+    pub forces: Option<model::ForceTargets>,
 }
 
 /// Stacks items into tensors.
@@ -439,7 +503,50 @@ impl Batcher<DepthItem, DepthBatch> for DepthBatcher {
         let depths: Vec<f32> = items.iter().flat_map(|i| i.depth.iter().copied()).collect();
         assert!(items.iter().all(|i| i.mask.len() == oh * ow), "an item's mask is not the output's size");
         let masks: Vec<f32> = items.iter().flat_map(|i| i.mask.iter().copied()).collect();
+        let pressures = items.iter().any(|i| i.pressure.is_some()).then(|| {
+            let (mut targets, mut kept) = (Vec::with_capacity(n * oh * ow), Vec::with_capacity(n * oh * ow));
+            for item in &items {
+                match &item.pressure {
+                    Some(p) => {
+                        assert_eq!(p.len(), oh * ow, "an item's pressure map is not the output's size");
+                        targets.extend_from_slice(p);
+                        kept.extend(item.mask.iter().copied());
+                    }
+                    None => {
+                        targets.extend(std::iter::repeat_n(0.0, oh * ow));
+                        kept.extend(std::iter::repeat_n(0.0, oh * ow));
+                    }
+                }
+            }
+            let tensor = |v: Vec<f32>| Tensor::from_data(TensorData::new(v, [n, 1, oh, ow]), device);
+            (tensor(targets), tensor(kept))
+        });
+        let forces = items.iter().any(|i| i.force.is_some()).then(|| {
+            let (mut per_unit, mut force_n, mut has) = (Vec::new(), Vec::new(), Vec::new());
+            for item in &items {
+                match &item.force {
+                    Some((f, w)) => {
+                        assert_eq!(w.len(), 3 * oh * ow, "an item's force weights are not the output's size");
+                        per_unit.extend_from_slice(w);
+                        force_n.extend_from_slice(f);
+                        has.push(1.0);
+                    }
+                    None => {
+                        per_unit.extend(std::iter::repeat_n(0.0, 3 * oh * ow));
+                        force_n.extend([0.0; 3]);
+                        has.push(0.0);
+                    }
+                }
+            }
+            model::ForceTargets {
+                per_unit: Tensor::from_data(TensorData::new(per_unit, [n, 3, oh * ow]), device),
+                force_n: Tensor::from_data(TensorData::new(force_n, [n, 3]), device),
+                has: Tensor::from_data(TensorData::new(has, [n, 1]), device),
+            }
+        });
         DepthBatch {
+            pressures,
+            forces,
             images: Tensor::from_data(TensorData::new(images, [n, channels, h, w]), device),
             depths: Tensor::from_data(TensorData::new(depths, [n, 1, oh, ow]), device),
             masks: Tensor::from_data(TensorData::new(masks, [n, 1, oh, ow]), device),

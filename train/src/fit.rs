@@ -33,6 +33,19 @@ pub struct Start {
     pub weights: Option<DenseDepth>,
 }
 
+impl Start {
+    /// The network `config` trains: with the pressure output where its force weight is above
+    /// zero (given weights without one get a fresh one).
+    fn for_config(self, config: &FitConfig, device: &Device) -> Start {
+        if config.force_weight > 0.0 && !self.model_config.pressure {
+            let model_config = self.model_config.with_pressure(true);
+            Start { weights: self.weights.map(|w| w.with_pressure_output(device)), model_config }
+        } else {
+            self
+        }
+    }
+}
+
 /// A finished run.
 pub struct Fitted {
     pub net: DenseDepth,
@@ -88,6 +101,7 @@ pub fn fit_on(run_dir: &Path, config: &FitConfig, start: Start, devices: &[Devic
 pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunOptions) -> Result<Fitted> {
     config.validate()?;
     let Some(device) = options.devices.first() else { bail!("no training device given") };
+    let start = start.for_config(config, device);
     let folders = config.folders();
     let inputs: Vec<&Path> = folders.iter().map(|p| p.as_path()).collect();
     let _claim = formats::output::claim_dir(run_dir, OutputKind::Run, &inputs)?;
@@ -411,9 +425,11 @@ impl<'a> Run<'a> {
             bad_samples: state.bad_samples.len(),
             bad_val_samples: state.bad_val_samples.len(),
             seconds: started.elapsed().as_secs_f64(),
+            val_pressure_l1_kpa: val.pressure_l1_kpa,
         };
+        let pressure = metrics.val_pressure_l1_kpa.map_or(String::new(), |p| format!(", pressure L1 {p:.2} kPa"));
         eprintln!(
-            "epoch {}: train loss {:.4}, validation L1 {:.4} mm (loss {:.4}), {:.0} s",
+            "epoch {}: train loss {:.4}, validation L1 {:.4} mm{pressure} (loss {:.4}), {:.0} s",
             metrics.epoch, metrics.train_loss, metrics.val_l1_mm, metrics.val_loss, metrics.seconds
         );
         let improved = self.config.val_fraction > 0.0
@@ -441,6 +457,9 @@ pub struct Evaluation {
     /// Mean per-image L1 (mm) over the true contact pixels (deeper than
     /// `sensor::CONTACT_THRESHOLD_MM`) of the images that have any; `None` if none has.
     pub contact_l1_mm: Option<f64>,
+    /// Mean per-image pressure L1 (kPa, labelled useful pixels) of a network with the pressure
+    /// output, over the images that have a pressure map.
+    pub pressure_l1_kpa: Option<f64>,
     /// Mean loss over the batches.
     pub loss: f64,
     /// Images the means are over.
@@ -461,7 +480,10 @@ pub fn validate(
     on_bad: OnBadData,
     split: &str,
 ) -> Result<Evaluation> {
-    let loss_config = DepthLossConfig::new().with_dynamic_range(data.scale.range() as f64);
+    let loss_config = DepthLossConfig::new()
+        .with_dynamic_range(data.scale.range() as f64)
+        .with_pressure_weight(FitConfig::DEFAULT_FORCE_WEIGHT);
+    let (mut pressure_sum, mut pressure_images) = (0f64, 0usize);
     let (mut l1_sum, mut loss_sum, mut images, mut batches) = (0f64, 0f64, 0usize, 0usize);
     let (mut contact_sum, mut contact_images) = (0f64, 0usize);
     let mut bad = Vec::new();
@@ -486,9 +508,20 @@ pub fn validate(
         // Useful pixels of each image (its unit's mask).
         let useful: Vec<f32> = items.iter().map(|i| i.mask.iter().sum::<f32>().max(1.0)).collect();
         let b = batcher.batch(items, device);
-        let pred = net.forward(b.images);
+        let heads = net.forward_heads(b.images);
+        let pred = heads.depth.clone();
+        if let (Some(p), Some((target, kept))) = (&heads.pressure, &b.pressures) {
+            let err = (p.clone() - target.clone()).abs() * kept.clone();
+            let per_image = |t: Tensor<4>| t.sum_dim(3).sum_dim(2).flatten::<1>(0, 3).into_data().try_to_vec::<f32>();
+            for (e, px) in per_image(err)?.into_iter().zip(per_image(kept.clone())?) {
+                if px > 0.0 {
+                    pressure_sum += (e / px * model::PRESSURE_KPA_PER_UNIT) as f64;
+                    pressure_images += 1;
+                }
+            }
+        }
         loss_sum += loss_config
-            .forward_masked(pred.clone(), b.depths.clone(), Some(b.masks.clone()))
+            .forward_heads(heads, b.depths.clone(), b.masks.clone(), b.pressures.clone(), b.forces.clone())
             .total
             .into_scalar::<f32>() as f64;
         let true_mm = data.scale.tensor_to_mm(b.depths);
@@ -519,6 +552,7 @@ pub fn validate(
     Ok(Evaluation {
         l1_mm: l1_sum / images as f64,
         contact_l1_mm: (contact_images > 0).then(|| contact_sum / contact_images as f64),
+        pressure_l1_kpa: (pressure_images > 0).then(|| pressure_sum / pressure_images as f64),
         loss: loss_sum / batches as f64,
         images,
         bad,
@@ -547,6 +581,7 @@ fn write_metrics(run: &Path, history: &[EpochMetrics]) -> Result<()> {
         "skipped_steps",
         "bad_samples",
         "bad_val_samples",
+        "val_pressure_l1_kpa",
         "seconds",
     ])?;
     for m in history {
@@ -558,6 +593,7 @@ fn write_metrics(run: &Path, history: &[EpochMetrics]) -> Result<()> {
             m.skipped_steps.to_string(),
             m.bad_samples.to_string(),
             m.bad_val_samples.to_string(),
+            m.val_pressure_l1_kpa.map_or(String::new(), |p| p.to_string()),
             format!("{:.1}", m.seconds),
         ])?;
     }

@@ -144,6 +144,11 @@ struct Common {
     /// loss; default: the recipe's; fine-tuning: 0).
     #[arg(long)]
     contact_weight: Option<f64>,
+    /// Weight of the pressure output's L1 in the training loss; above 0 the network reports
+    /// contact pressure and force (trained on the samples' pressure maps). Default: the
+    /// recipe's (quickstart 1, paper 0); fine-tuning: 1 where the bundle has the output, else 0.
+    #[arg(long)]
+    force_weight: Option<f64>,
     /// Vary each training sample's look as units differ (colour gains, a tone exponent; frame
     /// and reference alike): for a base model trained with --more-data.
     #[arg(long)]
@@ -331,6 +336,7 @@ fn config(
         max_minutes: c.max_minutes,
         more_data,
         vary_look: c.vary_look,
+        force_weight: c.force_weight.unwrap_or(base.force_weight),
     };
     config.validate()?;
     Ok(config)
@@ -408,8 +414,11 @@ fn run_finetune(args: FinetuneArgs) -> Result<()> {
     let input = [file.input_height_px, file.input_width_px];
     // The bundle's depth units: the network's output layer was trained to them.
     let net_range = [file.depth_scale.net_min, file.depth_scale.net_max];
-    let cfg =
-        config(&args.common, FitConfig::new(args.common.data.clone(), input), input, net_range, args.freeze_encoder)?;
+    let base = FitConfig {
+        force_weight: if file.model.pressure { FitConfig::DEFAULT_FORCE_WEIGHT } else { 0.0 },
+        ..FitConfig::new(args.common.data.clone(), input)
+    };
+    let cfg = config(&args.common, base, input, net_range, args.freeze_encoder)?;
     let data = DepthDataset::open(&cfg.data, None, input)?;
     if (data.sensor.radius_mm - file.sensor.radius_mm).abs() > 1e-9 {
         bail!("{}: the dataset's sensor radius differs from the bundle's", cfg.data.display());

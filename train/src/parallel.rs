@@ -146,8 +146,8 @@ fn share_grads(
 ) -> StepGrads {
     let device = net.devices()[0].clone();
     let batch = batcher.batch(items, &device);
-    let pred = net.forward(batch.images);
-    let mut total = loss.forward_masked(pred, batch.depths, Some(batch.masks)).total;
+    let heads = net.forward_heads(batch.images);
+    let mut total = loss.forward_heads(heads, batch.depths, batch.masks, batch.pressures, batch.forces).total;
     if fraction != 1.0 {
         total = total.mul_scalar(fraction);
     }

@@ -12,7 +12,8 @@ pub enum Recipe {
     /// The best measured on these sensors: the compact preset at 128x128 reading RGB and its
     /// difference to the unit's reference frame, output at the input's resolution, depth in
     /// 0.01..1 units, Adam peaking at 1e-3 after 100 warm-up steps with a cosine schedule, 14
-    /// epochs at batch 4, the contact-weighted loss (5), the best epoch on 10 % held out.
+    /// epochs at batch 4, the contact-weighted loss (5), the best epoch on 10 % held out; the
+    /// pressure output trained beside depth (force weight 1).
     Quickstart,
     /// The paper's: DenseNet-161 at 480x640 reading RGB, output at half resolution, the paper's
     /// depth units and loss, Adam at 1e-4, 16 epochs at batch 4.
@@ -59,6 +60,7 @@ impl Recipe {
                 warmup_steps: 100,
                 val_fraction: 0.1,
                 contact_weight: 5.0,
+                force_weight: FitConfig::DEFAULT_FORCE_WEIGHT,
                 ..base
             },
             Recipe::Paper => FitConfig {

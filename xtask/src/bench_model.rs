@@ -173,6 +173,8 @@ pub fn run(args: Args) -> Result<()> {
                 .map(|_| DepthItem {
                     image: (0..channels * h * w).map(|_| rng.unit() as f32).collect(),
                     depth: (0..oh * ow).map(|_| 10.0 + 990.0 * rng.unit() as f32).collect(),
+                    pressure: None,
+                    force: None,
                     mask: mask.clone(),
                 })
                 .collect();

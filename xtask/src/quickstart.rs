@@ -43,6 +43,9 @@ pub struct Args {
     /// Weight of the training loss's extra L1 term over contact pixels (0: DenseDepth's loss).
     #[arg(long, default_value_t = 5.0)]
     contact_weight: f64,
+    /// Weight of the pressure output's term (0: depth only, no force figures).
+    #[arg(long, default_value_t = train::FitConfig::DEFAULT_FORCE_WEIGHT)]
+    force_weight: f64,
     /// Training seeds: the first trains the bundle the examples come from; each further one
     /// trains again (run, bundle, test evaluation under `seeds/N/`), and the summary gives
     /// every headline figure as mean and spread over all of them.
@@ -62,6 +65,9 @@ struct Plan {
 
 /// The paper's test error (mean per-image L1, useful pixels, mm).
 const PAPER_TEST_L1_MM: f64 = 0.281;
+/// The force goal: the test split's mean total-force error at most this share (%) of its mean
+/// total force.
+const FORCE_GOAL_PCT: f64 = 3.0;
 /// What a user needs where the sensor is pressed: contact depth to a fifth of a millimetre.
 const CONTACT_GOAL_MM: f64 = 0.20;
 /// And over all useful pixels.
@@ -149,6 +155,7 @@ fn train_seed(
         seed,
         warmup_steps: if args.smoke { 0 } else { 100 },
         contact_weight: args.contact_weight,
+        force_weight: args.force_weight,
         ..recipe(data, plan.input)
     };
     let start = Start {
@@ -189,6 +196,19 @@ test split over {} training seeds (mean ± sd [min, max] of the per-seed means, 
     for (name, f) in figures {
         let spread = infer::eval::Summary::of(test.iter().map(f));
         println!("  {name:12} {:.4} ± {:.4} [{:.4}, {:.4}]", spread.mean, spread.sd, spread.min, spread.max);
+    }
+    let forces: Vec<&infer::eval::ForceStats> = test.iter().filter_map(|s| s.force.as_ref()).collect();
+    if !forces.is_empty() {
+        let error = infer::eval::Summary::of(forces.iter().map(|f| f.force_magnitude_error_n.mean));
+        let pct = infer::eval::Summary::of(forces.iter().map(|f| f.force_magnitude_error_pct));
+        println!(
+            "  total force error {:.4} ± {:.4} N [{:.4}, {:.4}], {:.2} ± {:.2} % of the mean force",
+            error.mean, error.sd, error.min, error.max, pct.mean, pct.sd
+        );
+        println!(
+            "goal (mean of seeds): total force error at most {FORCE_GOAL_PCT} % of the mean force: {}",
+            if pct.mean <= FORCE_GOAL_PCT { "met" } else { "NOT met" }
+        );
     }
     let contact = infer::eval::Summary::of(test.iter().map(|s| s.contact_l1_mm.mean)).mean;
     let l1 = infer::eval::Summary::of(test.iter().map(|s| s.l1_mm.mean)).mean;
@@ -390,6 +410,34 @@ fn print_summary(
             verdict(test.l1_mm.mean < PAPER_TEST_L1_MM),
         );
     }
+    if stats.values().any(|s| s.force.is_some()) {
+        println!("\ncontact force (the pressure output summed over the dome; truth: the labels' elastic contact, N):");
+        println!(
+            "| split | images | mean force | total force error | % of mean | force vector error | pressure L1 (kPa) |"
+        );
+        println!("|---|---:|---:|---:|---:|---:|---:|");
+        for (name, f) in stats.iter().filter_map(|(n, s)| s.force.as_ref().map(|f| (n, f))) {
+            println!(
+                "| {name} | {} | {:.3} | {:.4} | {:.2} | {:.4} | {:.3} |",
+                f.force_n.n,
+                f.force_n.mean,
+                f.force_magnitude_error_n.mean,
+                f.force_magnitude_error_pct,
+                f.force_error_n.mean,
+                f.pressure_l1_kpa.mean
+            );
+        }
+        if let Some(f) = stats.get(&Split::Test).and_then(|s| s.force.as_ref()) {
+            println!(
+                "goal: test total force error {:.2} % of the mean force, at most {FORCE_GOAL_PCT} %: {}; {:.3} N beside \
+                 DenseTact 2.0's {} N",
+                f.force_magnitude_error_pct,
+                if f.force_magnitude_error_pct <= FORCE_GOAL_PCT { "met" } else { "NOT met" },
+                f.force_magnitude_error_n.mean,
+                infer::plot::DENSETACT2_FORCE_ERROR_N
+            );
+        }
+    }
     if let Some(best) = state.selected() {
         println!("model: epoch {} of {} (best on held-out training samples)", best.epoch, state.history.len());
     }
@@ -438,6 +486,7 @@ mod tests {
             channels: model::InputChannels::RgbDifference,
             half_resolution: false,
             contact_weight: 5.0,
+            force_weight: train::FitConfig::DEFAULT_FORCE_WEIGHT,
             seeds: 2,
         };
         run(args()).unwrap();

@@ -207,6 +207,12 @@ fn a_meshed_sphere_seen_through_the_depth_map_gives_hertz_force() {
         let h = label.contact.patches[0].spacing_mm;
         let most = 0.5 * ((radius + h) / radius).powi(2) + 0.02;
         assert!((0.45..most).contains(&share), "{pressed} pressed pixels of {touching} overlapping (spacing {h} mm)");
+        // What a network's pressure output is read back through: the map summed over the dome
+        // area each pixel sees gives the solved contact's force (pixel sums against node sums).
+        let summed = sensor::DomeAreas::new(&sensor).wrench(&label.pressure_kpa);
+        let off = summed.force_distance_n(&label.wrench) / got;
+        eprintln!("  pressure map summed over pixels: {:?} N, {:.2} % off the nodes'", summed.force_n, 100.0 * off);
+        assert!(off <= 0.03, "{:?} against {:?}", summed.force_n, label.wrench.force_n);
     }
 }
 

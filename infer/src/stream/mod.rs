@@ -54,6 +54,8 @@ pub struct FrameResult<'a> {
     pub cloud: &'a PointCloud,
     /// Whether the network ran (false: the contact gate saw an untouched frame).
     pub network_ran: bool,
+    /// Contact pressure and wrench, from a bundle with the force output.
+    pub force: Option<&'a crate::Force>,
 }
 
 /// When a stream stops besides its source's end or Ctrl-C.
@@ -119,7 +121,7 @@ pub fn run(
         let result = (|| -> Result<(), StreamError> {
             while let Some(frame) = mailbox.take() {
                 // The capture made it the crop: its size is not checked again.
-                let (depth, network_ran) = live.predict_crop(&frame.image);
+                let crate::Prediction { depth, force, network_ran } = live.predict_all_crop(&frame.image);
                 let contact_pixels =
                     Predictor::contact_mask(&depth, CONTACT_THRESHOLD_MM).iter().filter(|&&c| c).count();
                 let cloud = if contact_pixels > 0 {
@@ -134,6 +136,7 @@ pub fn run(
                     contact_pixels,
                     cloud: &cloud,
                     network_ran,
+                    force: force.as_ref(),
                 };
                 for sink in sinks.iter_mut() {
                     sink.frame(&live, &result).map_err(StreamError::Sink)?;
@@ -155,6 +158,9 @@ pub fn run(
                     network_ran,
                     contact_pixels,
                     max_depth_mm: depth.max_mm(),
+                    fx_n: force.as_ref().map(|f| f.wrench.force_n[0]),
+                    fy_n: force.as_ref().map(|f| f.wrench.force_n[1]),
+                    fz_n: force.as_ref().map(|f| f.wrench.force_n[2]),
                 });
                 if limits.max_frames.is_some_and(|m| records.len() as u64 >= m) {
                     stop.store(true, Ordering::Relaxed);

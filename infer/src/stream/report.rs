@@ -18,6 +18,10 @@ pub struct FrameRecord {
     pub network_ran: bool,
     pub contact_pixels: usize,
     pub max_depth_mm: f32,
+    /// The contact force (N, sensor frame), from a bundle with the force output.
+    pub fx_n: Option<f64>,
+    pub fy_n: Option<f64>,
+    pub fz_n: Option<f64>,
 }
 
 /// Percentiles of a set of times (ms), by the project's one quantile rule
@@ -210,6 +214,9 @@ mod tests {
             network_ran: ran,
             contact_pixels: 0,
             max_depth_mm: 0.0,
+            fx_n: None,
+            fy_n: None,
+            fz_n: None,
         };
         // Frames 0, 2, 4, ..., 10 processed (every other one dropped); 2, 6 and 10 ran the network.
         let records: Vec<FrameRecord> = (0..=10).step_by(2).map(|i| record(i, i % 4 == 2)).collect();
@@ -224,6 +231,8 @@ mod tests {
         report.frames = records;
         let csv = String::from_utf8(report.frames_csv()).unwrap();
         assert_eq!(csv.lines().count(), 7);
-        assert!(csv.starts_with("name,arrived_s,latency_ms,network_ran,contact_pixels,max_depth_mm\n"), "{csv}");
+        // The force columns stay empty for a bundle without the force output.
+        let header = "name,arrived_s,latency_ms,network_ran,contact_pixels,max_depth_mm,fx_n,fy_n,fz_n\n";
+        assert!(csv.starts_with(header) && csv.lines().nth(1).unwrap().ends_with(",,,"), "{csv}");
     }
 }

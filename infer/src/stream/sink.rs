@@ -29,8 +29,9 @@ pub enum SinkError {
 }
 
 /// Per frame: `depth/NAME.png` (16-bit, micrometres, as `predict --depth-out`) and, for a frame
-/// with contact, `cloud/NAME.ply` (contact patch, sensor frame, mm); at the end `stream.json`
-/// and `frames.csv`. Every file is written whole or not at all.
+/// with contact, `cloud/NAME.ply` (contact patch, sensor frame, mm) and, from a bundle with the
+/// force output, `pressure/NAME.png` (as `predict --pressure-out`); at the end `stream.json`
+/// and `frames.csv` (with each frame's force). Every file is written whole or not at all.
 pub struct FolderSink {
     out: PathBuf,
     /// Names used so far: frames of the same file name from two folders do not overwrite.
@@ -52,7 +53,7 @@ impl FolderSink {
                 _ => {}
             }
         }
-        for sub in ["depth", "cloud"] {
+        for sub in ["depth", "cloud", "pressure"] {
             let dir = out.join(sub);
             match std::fs::remove_dir_all(&dir) {
                 Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(failed(dir, e)),
@@ -92,6 +93,9 @@ impl Sink for FolderSink {
         write(self.out.join("depth").join(format!("{name}.png")), &result.depth.to_png_um())?;
         if result.contact_pixels > 0 {
             write(self.out.join("cloud").join(format!("{name}.ply")), &ply_bytes(result.cloud))?;
+            if let Some(force) = result.force {
+                write(self.out.join("pressure").join(format!("{name}.png")), &force.pressure.to_png())?;
+            }
         }
         Ok(())
     }

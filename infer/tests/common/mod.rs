@@ -16,12 +16,22 @@ pub fn bundle_file(model: DenseDepthConfig, unit: &SensorUnit) -> BundleFile {
 /// A bundle with an untrained tiny network for simulated unit 3, with its reference image and
 /// a contact gate fitted to a few of the unit's frames (untouched, and dented 0.3 mm).
 pub fn bundle(dir: &Path) -> Renderer {
+    bundle_with(dir, DenseDepthConfig::new(DenseNetConfig::tiny()), |net, _| net)
+}
+
+/// [`bundle`] of the network `config` gives, changed by `edit` (given the bundle's depth scale)
+/// before it is written.
+pub fn bundle_with(
+    dir: &Path,
+    config: DenseDepthConfig,
+    edit: impl FnOnce(model::DenseDepth, &DepthScale) -> model::DenseDepth,
+) -> Renderer {
     let unit = SensorUnit::from_seed(3, 25.0);
     let renderer = Renderer::for_crop(&unit);
     let device = model::backend::default_device();
     device.seed(1);
-    let net = DenseDepthConfig::new(DenseNetConfig::tiny()).init(&device);
-    let mut file = bundle_file(DenseDepthConfig::new(DenseNetConfig::tiny()), &unit);
+    let mut file = bundle_file(config.clone(), &unit);
+    let net = edit(config.init(&device), &file.depth_scale);
     let reference_image = renderer.reference_image(1);
     let mask = unit.sensor.valid_mask();
     let n = renderer.grid().width as usize;
@@ -45,6 +55,28 @@ pub fn bundle(dir: &Path) -> Renderer {
     let reference = sensor::frame::encode_png_rgb(&reference_image);
     write_bundle(dir, &net, &file, Some(&reference), &[]).unwrap();
     renderer
+}
+
+/// `count` samples of `renderer`'s unit (3) from the procedural kit, `test_fraction` of them
+/// test samples, with force labels.
+pub fn dataset_of(renderer: &Renderer, data: &Path, count: u32, test_fraction: f32) {
+    let kit = dataset::Kit::procedural(25.0);
+    let params = formats::dataset::GeneratorParams {
+        unit: Some(3),
+        test_fraction,
+        ..formats::dataset::GeneratorParams::new(4, count, &kit.source)
+    };
+    let unit = renderer.unit().clone();
+    dataset::generate::Generator {
+        out: data.to_path_buf(),
+        sensor: &unit.sensor,
+        kit: &kit,
+        params,
+        skipping: dataset::Skipping::On,
+        renderer: Some(renderer),
+    }
+    .run()
+    .unwrap();
 }
 
 /// A frame with a 1 mm dent in the middle.

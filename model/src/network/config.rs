@@ -182,6 +182,11 @@ pub struct DenseDepthConfig {
     /// instead of DenseDepth's half: edges of contact patches and small bumps survive.
     #[config(default = false)]
     pub full_resolution: bool,
+    /// A second output, the contact pressure on the depth's grid (`PressureScale`), from its
+    /// own 3x3 convolution on the decoder's last features; trained beside depth
+    /// (`train fit --force-weight`). Configurations written before this field have none.
+    #[config(default = false)]
+    pub pressure: bool,
 }
 
 impl DenseDepthConfig {

@@ -1,6 +1,7 @@
 //! DenseDepth's decoder: a 1x1 bottleneck convolution, four upsample-concat-conv-conv blocks
 //! with LeakyReLU(0.2), and a 3x3 convolution to one channel at half the input resolution; or,
-//! with a fifth block whose skip is the input itself, at the input's resolution.
+//! with a fifth block whose skip is the input itself, at the input's resolution. A network with
+//! a pressure output reads the same last features with a second 3x3 convolution.
 
 use burn::module::Module;
 use burn::nn::PaddingConfig2d;
@@ -14,7 +15,7 @@ use super::{Activation, conv2d, conv2d_act};
 
 const SLOPE: f64 = 0.2;
 
-fn conv3(channels: [usize; 2], device: &Device) -> Conv2d {
+pub(crate) fn conv3(channels: [usize; 2], device: &Device) -> Conv2d {
     Conv2dConfig::new(channels, [3, 3]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device)
 }
 
@@ -37,6 +38,18 @@ impl UpBlock {
     }
 }
 
+/// The network's outputs, network units.
+#[derive(Clone, Debug)]
+pub struct Heads {
+    pub depth: Tensor<4>,
+    /// Contact pressure, where the network has the channel.
+    pub pressure: Option<Tensor<4>>,
+    /// While training (an autodiff device), the same pressure computed from the decoder's
+    /// features detached from the graph: a loss term on it trains the pressure convolution and
+    /// leaves the features, which depth shares, to the other terms.
+    pub pressure_head_only: Option<Tensor<4>>,
+}
+
 #[derive(Module, Debug)]
 pub struct Decoder {
     pub conv2: Conv2d,
@@ -47,6 +60,8 @@ pub struct Decoder {
     /// To the input's resolution, the input as its skip (`DenseDepthConfig::full_resolution`).
     pub up5: Option<UpBlock>,
     pub conv3: Conv2d,
+    /// The contact pressure's channel (`DenseDepthConfig::pressure`), beside `conv3`.
+    pub pressure: Option<Conv2d>,
 }
 
 impl Decoder {
@@ -58,6 +73,7 @@ impl Decoder {
         bottleneck: usize,
         widths: [usize; 5],
         full_input: Option<usize>,
+        pressure: bool,
         device: &Device,
     ) -> Self {
         let [n, n2, n4, n8, n16] = widths;
@@ -69,11 +85,13 @@ impl Decoder {
             up3: UpBlock::new(n4 + skips[1], n8, device),
             up4: UpBlock::new(n8 + skips[0], n16, device),
             conv3: conv3([n16, 1], device),
+            pressure: pressure.then(|| conv3([n16, 1], device)),
         }
     }
 
-    /// `input`: the network's input, used only by the full-resolution block.
-    pub fn forward(&self, s: Skips, input: Tensor<4>, mode: Upsample) -> Tensor<4> {
+    /// Depth, and pressure where the decoder has its channel. `input`: the network's input,
+    /// used only by the full-resolution block.
+    pub fn forward(&self, s: Skips, input: Tensor<4>, mode: Upsample) -> Heads {
         let x = conv2d(&self.conv2, relu(s.norm5));
         let x = self.up1.forward(x, s.transition2, mode);
         let x = self.up2.forward(x, s.transition1, mode);
@@ -83,6 +101,13 @@ impl Decoder {
             Some(up5) => up5.forward(x, input, mode),
             None => x,
         };
-        conv2d(&self.conv3, x)
+        let pressure = self.pressure.as_ref().map(|c| conv2d(c, x.clone()));
+        // While training: the same channel on features cut from the graph, for the loss's
+        // resultant term, whose gradient then reaches the pressure convolution alone.
+        let pressure_head_only = match &self.pressure {
+            Some(c) if x.device().is_autodiff() => Some(conv2d(c, x.clone().detach())),
+            _ => None,
+        };
+        Heads { depth: conv2d(&self.conv3, x), pressure, pressure_head_only }
     }
 }

@@ -4,7 +4,7 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor};
 
 use super::config::DenseDepthConfig;
-use super::decoder::Decoder;
+use super::decoder::{Decoder, Heads};
 use super::densenet::DenseNetEncoder;
 use super::upsample::{Upsample, upsample_mode_for};
 
@@ -27,6 +27,7 @@ impl DenseDepthConfig {
                 bottleneck,
                 self.decoder_channels(),
                 self.full_resolution.then_some(self.input.count()),
+                self.pressure,
                 device,
             ),
         }
@@ -37,12 +38,33 @@ impl DenseDepth {
     /// Forward pass. Upsampling uses Burn's native bilinear kernel unless gradients are being
     /// recorded on a backend whose `interpolate` has no backward pass.
     pub fn forward(&self, images: Tensor<4>) -> Tensor<4> {
+        self.forward_heads(images).depth
+    }
+
+    /// Depth and, where the network has its channel, pressure (both `[N, 1, OH, OW]`, network
+    /// units; see `PressureScale`).
+    pub fn forward_heads(&self, images: Tensor<4>) -> Heads {
         let mode = upsample_mode_for(&images.device());
         self.forward_with(images, mode)
     }
 
+    /// Whether this network has the pressure output.
+    pub fn has_pressure(&self) -> bool {
+        self.decoder.pressure.is_some()
+    }
+
+    /// This network with a pressure output, freshly initialised from `device`'s generator where
+    /// it has none: a depth-only network fine-tuned into one that also reports force.
+    pub fn with_pressure_output(mut self, device: &Device) -> Self {
+        if self.decoder.pressure.is_none() {
+            let features = self.decoder.conv3.weight.dims()[1];
+            self.decoder.pressure = Some(super::decoder::conv3([features, 1], device));
+        }
+        self
+    }
+
     /// Panics on an input [`check_input`](Self::check_input) refuses.
-    pub fn forward_with(&self, images: Tensor<4>, mode: Upsample) -> Tensor<4> {
+    pub fn forward_with(&self, images: Tensor<4>, mode: Upsample) -> Heads {
         if let Err(e) = self.check_input(images.dims()) {
             panic!("{e}");
         }
@@ -161,6 +183,28 @@ mod tests {
             assert_eq!(out.dims(), want, "{input:?} full {full}");
             assert_eq!(config.output_hw([64, 96]), [want[2], want[3]]);
         }
+    }
+
+    /// While training, the head-only pressure equals the pressure and its gradient reaches the
+    /// pressure convolution alone; the pressure's own reaches the shared decoder too.
+    #[test]
+    fn the_head_only_pressure_trains_the_pressure_convolution_alone() {
+        let device = crate::backend::default_device().autodiff();
+        let net = DenseDepthConfig::new(crate::network::DenseNetConfig::tiny()).with_pressure(true).init(&device);
+        let x = Tensor::<4>::random([1, 3, 40, 40], burn::tensor::Distribution::Uniform(0.0, 1.0), &device);
+        let heads = net.forward_heads(x.clone());
+        let (pressure, head_only) = (heads.pressure.unwrap(), heads.pressure_head_only.unwrap());
+        let v = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+        assert_eq!(v(pressure.clone()), v(head_only.clone()));
+        let conv = net.decoder.pressure.as_ref().unwrap();
+        let shared = &net.decoder.up4.conv_b;
+        let grads = head_only.sum().backward();
+        assert!(conv.weight.grad(&grads).is_some() && shared.weight.grad(&grads).is_none());
+        let grads = pressure.sum().backward();
+        assert!(conv.weight.grad(&grads).is_some() && shared.weight.grad(&grads).is_some());
+        // Without autodiff there is nothing to cut, and nothing is computed twice.
+        let plain = net.valid().forward_heads(x.inner());
+        assert!(plain.pressure.is_some() && plain.pressure_head_only.is_none());
     }
 
     #[test]

@@ -8,7 +8,7 @@ mod densenet;
 mod upsample;
 
 pub use config::{ConfigError, DenseDepthConfig, DenseNetConfig, Preset};
-pub use decoder::{Decoder, UpBlock};
+pub use decoder::{Decoder, Heads, UpBlock};
 pub use densedepth::DenseDepth;
 pub use densenet::{DenseBlock, DenseLayer, DenseNetEncoder, Skips, Transition, fold_batch_norm};
 pub use upsample::{Upsample, interpolation_matrix, upsample_bilinear, upsample_mode_for};

@@ -26,6 +26,9 @@ pub const OPSET: i64 = 17;
 /// Names of the graph's input and output.
 pub const INPUT: &str = "input";
 pub const OUTPUT: &str = "depth";
+/// The second output's name, where the network has the pressure output (network units:
+/// `densetact.pressure_kpa_per_unit` kPa each).
+pub const PRESSURE_OUTPUT: &str = "pressure";
 
 #[derive(Debug, thiserror::Error)]
 pub enum OnnxError {
@@ -39,7 +42,7 @@ pub enum OnnxError {
 pub fn export(net: &DenseDepth, file: &BundleFile) -> Result<Vec<u8>, OnnxError> {
     let net = net.clone().folded();
     let mut g = Graph::default();
-    let depth = g.densedepth(&net, INPUT)?;
+    let (depth, pressure) = g.densedepth(&net, INPUT)?;
     let channels = net.encoder.conv0.weight.dims()[1] as i64;
     let free = |name: &str| Dimension { value: Some(DimensionValue::DimParam(name.into())) };
     let fixed = |n: i64| Dimension { value: Some(DimensionValue::DimValue(n)) };
@@ -52,20 +55,28 @@ pub fn export(net: &DenseDepth, file: &BundleFile) -> Result<Vec<u8>, OnnxError>
     let out_dims = |h: &str, w: &str| vec![free("batch"), fixed(1), free(h), free(w)];
     let (oh, ow) = if file.model.full_resolution { ("height", "width") } else { ("out_height", "out_width") };
     g.rename_output(&depth, OUTPUT);
+    let mut output = vec![value(OUTPUT, out_dims(oh, ow))];
+    if let Some(p) = &pressure {
+        g.rename_output(p, PRESSURE_OUTPUT);
+        output.push(value(PRESSURE_OUTPUT, out_dims(oh, ow)));
+    }
     let graph = GraphProto {
         node: g.nodes,
         name: "densedepth".into(),
         initializer: g.initializers,
         input: vec![value(INPUT, vec![free("batch"), fixed(channels), free("height"), free("width")])],
-        output: vec![value(OUTPUT, out_dims(oh, ow))],
+        output,
     };
-    let metadata = [
+    let mut metadata = vec![
         ("densetact.input_encoding", file.input_encoding.clone()),
         ("densetact.depth_scale", json(&file.depth_scale)),
         ("densetact.model", json(&file.model)),
         ("densetact.input_hw", format!("{}x{}", file.input_height_px, file.input_width_px)),
         ("densetact.sensor", json(&file.sensor)),
     ];
+    if pressure.is_some() {
+        metadata.push(("densetact.pressure_kpa_per_unit", crate::PRESSURE_KPA_PER_UNIT.to_string()));
+    }
     let model = ModelProto {
         ir_version: IR_VERSION,
         opset_import: vec![OperatorSetIdProto { domain: String::new(), version: OPSET }],
@@ -249,7 +260,8 @@ impl Graph {
         Ok(self.node("LeakyRelu", &format!("{name}.conv_b.leaky"), &[&y], vec![attr_float("alpha", 0.2)]))
     }
 
-    fn densedepth(&mut self, net: &DenseDepth, input: &str) -> Result<String, OnnxError> {
+    /// The depth output's name, and the pressure output's where the network has one.
+    fn densedepth(&mut self, net: &DenseDepth, input: &str) -> Result<(String, Option<String>), OnnxError> {
         let e = &net.encoder;
         let y = self.conv("encoder.conv0", &e.conv0, input)?;
         let relu0 = match &e.norm0 {
@@ -287,6 +299,10 @@ impl Graph {
             Some(up5) => self.up_block("decoder.up5", up5, &x, input)?,
             None => x,
         };
-        self.conv("decoder.conv3", &d.conv3, &x)
+        let pressure = match &d.pressure {
+            Some(conv) => Some(self.conv("decoder.pressure", conv, &x)?),
+            None => None,
+        };
+        Ok((self.conv("decoder.conv3", &d.conv3, &x)?, pressure))
     }
 }

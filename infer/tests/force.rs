@@ -1,0 +1,181 @@
+//! A bundle with the pressure output: the force read back through the dome's areas, its files,
+//! the tare and the gate, and the evaluation's force figures.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use burn::module::Param;
+use burn::tensor::Tensor;
+use common::{bundle_with, dataset_of, pressed};
+use infer::Predictor;
+use model::{DenseDepth, DenseDepthConfig, DenseNetConfig, DepthScale};
+
+const DEPTH_MM: f32 = 1.0;
+const PRESSURE_KPA: f32 = 50.0;
+
+/// A network whose outputs are constants: `DEPTH_MM` of depth and `PRESSURE_KPA` of pressure at
+/// every pixel, whatever the frame (weights zero, biases set).
+fn constant(mut net: DenseDepth, scale: &DepthScale) -> DenseDepth {
+    let set = |conv: &mut burn::nn::conv::Conv2d, value: f32| {
+        conv.weight = Param::from_tensor(conv.weight.val().zeros_like());
+        let bias = conv.bias.as_ref().expect("a bias").val();
+        conv.bias = Some(Param::from_tensor(Tensor::full(bias.dims(), value, &bias.device())));
+    };
+    set(&mut net.decoder.conv3, scale.to_net(DEPTH_MM));
+    set(net.decoder.pressure.as_mut().expect("the pressure output"), PRESSURE_KPA / model::PRESSURE_KPA_PER_UNIT);
+    net
+}
+
+fn pressure_config() -> DenseDepthConfig {
+    DenseDepthConfig::new(DenseNetConfig::tiny()).with_pressure(true)
+}
+
+/// A uniform pressure on the whole visible cap pushes along the axis with p times the cap's
+/// projected area, pi (R sin theta_max)^2: read through the bundle, its files and its tare.
+#[test]
+fn a_uniform_pressure_output_gives_the_caps_projected_force() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = bundle_with(&dir, pressure_config(), constant);
+    let device = model::backend::default_device();
+    let mut p = Predictor::load(&dir, &device).unwrap();
+    assert!(p.has_force());
+    let (_, frame) = pressed(&renderer);
+
+    // Tared on the reference frame, a constant network reads no contact and no force.
+    let tared = p.predict_network_all(std::slice::from_ref(&frame)).unwrap().remove(0);
+    let force = tared.force.expect("a force bundle reports force");
+    assert!(tared.depth.depth_mm.iter().all(|&d| d.abs() < 1e-4));
+    assert!(force.pressure.pressure_kpa.iter().all(|&v| v == 0.0), "no contact, no pressure");
+    assert_eq!(force.wrench, sensor::Wrench::default());
+
+    p.set_tare(None).unwrap();
+    let out = p.predict_network_all(std::slice::from_ref(&frame)).unwrap().remove(0);
+    let force = out.force.unwrap();
+    let sensor = &p.file.sensor;
+    let r_base = sensor.radius_mm * sensor.max_theta_rad.sin();
+    let want_n = PRESSURE_KPA as f64 * std::f64::consts::PI * r_base * r_base * 1e-3;
+    let [fx, fy, fz] = force.wrench.force_n;
+    assert!((fz + want_n).abs() <= 0.01 * want_n, "fz {fz} N against -{want_n} N");
+    assert!(fx.abs() <= 0.01 * want_n && fy.abs() <= 0.01 * want_n, "{:?}", force.wrench.force_n);
+    // Pressure on the useful disk only, at the network's value.
+    for ((&v, &m), &d) in force.pressure.pressure_kpa.iter().zip(&p.mask).zip(&out.depth.depth_mm) {
+        assert!(if m { (v - PRESSURE_KPA).abs() < 0.01 && d > 0.9 } else { v == 0.0 }, "{v} kPa, mask {m}, {d} mm");
+    }
+    assert_eq!(force.wrench, sensor::DomeAreas::new(sensor).wrench(&force.pressure.pressure_kpa));
+
+    // The command writes the same map (0.1 kPa steps) and prints the force.
+    let image = tmp.path().join("frame.png");
+    std::fs::write(&image, sensor::frame::encode_png_rgb(&frame)).unwrap();
+    let pressure_png = tmp.path().join("pressure.png");
+    let r = Command::new(env!("CARGO_BIN_EXE_infer"))
+        .args(["predict", "--bundle", dir.to_str().unwrap(), "--image", image.to_str().unwrap(), "--always"])
+        .args(["--no-tare", "--pressure-out", pressure_png.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let stdout = String::from_utf8_lossy(&r.stdout);
+    assert!(stdout.contains(&format!("force {:.3} N", force.wrench.force_magnitude_n())), "{stdout}");
+    let back = sensor::PressureMap::load_png(&pressure_png).unwrap();
+    assert!(back.pressure_kpa.iter().zip(&force.pressure.pressure_kpa).all(|(a, b)| (a - b).abs() <= 0.05));
+}
+
+/// A depth-only bundle has no pressure to write, and says so; its predictions carry no force.
+#[test]
+fn a_depth_only_bundle_refuses_a_pressure_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = common::bundle(&dir);
+    let p = Predictor::load(&dir, &model::backend::default_device()).unwrap();
+    let (_, frame) = pressed(&renderer);
+    assert!(!p.has_force() && p.predict_all(&frame).unwrap().force.is_none());
+    let image = tmp.path().join("frame.png");
+    std::fs::write(&image, sensor::frame::encode_png_rgb(&frame)).unwrap();
+    let out = tmp.path().join("p.png");
+    let r = Command::new(env!("CARGO_BIN_EXE_infer"))
+        .args(["predict", "--bundle", dir.to_str().unwrap(), "--image", image.to_str().unwrap()])
+        .args(["--pressure-out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success() && err.contains("no force output"), "{err}");
+    assert!(!out.exists());
+}
+
+/// `eval` of a force bundle on samples with force labels adds the force figures: per image in
+/// errors.csv (against the labels' wrench and pressure map), per split in stats.json, and the
+/// force violin.
+#[test]
+fn eval_of_a_force_bundle_scores_force_against_the_labels() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = bundle_with(&dir, pressure_config(), constant);
+    let data = tmp.path().join("data");
+    dataset_of(&renderer, &data, 6, 0.34);
+    let out = tmp.path().join("eval");
+    let mut p = Predictor::load(&dir, &model::backend::default_device()).unwrap();
+    p.set_tare(None).unwrap();
+    p.gate = None;
+    let stats = infer::eval::evaluate_dataset(&p, &data, &[formats::Split::Train, formats::Split::Test], &out).unwrap();
+    let manifest = formats::dataset::Manifest::load(&data).unwrap();
+    // The constant network's force is the same on every frame: each image's error is its
+    // distance to that image's label.
+    let frame = p.read_frame(&data.join(manifest.samples[0].image.as_ref().unwrap())).unwrap();
+    let predicted = p.predict_all(&frame).unwrap().force.unwrap().wrench;
+    let csv = std::fs::read_to_string(out.join("errors.csv")).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    for line in csv.lines().skip(1) {
+        let cells: Vec<&str> = line.split(',').collect();
+        let id: u32 = cells[col("id")].parse().unwrap();
+        let sample = manifest.samples.iter().find(|s| s.id == id).unwrap();
+        let truth = sample.wrench.expect("force labels");
+        let got: f64 = cells[col("force_error_n")].parse().unwrap();
+        assert!((got - predicted.force_distance_n(&truth)).abs() < 1e-9, "{line}");
+        let magnitude: f64 = cells[col("force_n")].parse().unwrap();
+        assert!((magnitude - truth.force_magnitude_n()).abs() < 1e-9);
+        assert!(cells[col("pressure_l1_kpa")].parse::<f64>().unwrap() > 0.0);
+    }
+    for s in stats.values() {
+        let f = s.force.as_ref().expect("force figures");
+        assert_eq!(f.force_n.n, s.l1_mm.n);
+        let pct = 100.0 * f.force_magnitude_error_n.mean / f.force_n.mean;
+        assert!((f.force_magnitude_error_pct - pct).abs() < 1e-9);
+    }
+    let violin = std::fs::read_to_string(out.join("force_violin.svg")).unwrap();
+    assert!(violin.contains("<polygon") && violin.contains("DenseTact 2.0"));
+    assert!(Path::new(&out.join("violin.svg")).is_file());
+}
+
+/// A stream of a force bundle writes each contact frame's pressure map beside its depth and
+/// each frame's force in frames.csv.
+#[test]
+fn a_stream_of_a_force_bundle_writes_pressure_and_force() {
+    use infer::stream::{FolderSink, GlobSource, Sink, StreamLimits};
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = bundle_with(&dir, pressure_config(), constant);
+    let mut p = Predictor::load(&dir, &model::backend::default_device()).unwrap();
+    p.set_tare(None).unwrap();
+    let (_, frame) = pressed(&renderer);
+    let frames = tmp.path().join("frames");
+    std::fs::create_dir(&frames).unwrap();
+    std::fs::write(frames.join("a.png"), sensor::frame::encode_png_rgb(&frame)).unwrap();
+    let out = tmp.path().join("out");
+    let mut sink = FolderSink::new(&out).unwrap();
+    let source = Box::new(GlobSource::new(frames.join("*.png").to_str().unwrap(), None).unwrap());
+    let mut sinks: Vec<&mut dyn Sink> = vec![&mut sink];
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let report = infer::stream::run(&p, source, &mut sinks, &StreamLimits::default(), &stop).unwrap();
+    sink.finish(&report).unwrap();
+    let want = p.predict_all(&frame).unwrap().force.unwrap();
+    let map = sensor::PressureMap::load_png(&out.join("pressure/a.png")).unwrap();
+    assert!(map.pressure_kpa.iter().zip(&want.pressure.pressure_kpa).all(|(a, b)| (a - b).abs() <= 0.05));
+    let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let row: Vec<&str> = csv.lines().nth(1).unwrap().split(',').collect();
+    let fz: f64 = row[header.iter().position(|h| *h == "fz_n").unwrap()].parse().unwrap();
+    assert_eq!(fz, want.wrench.force_n[2]);
+}
