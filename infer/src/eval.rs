@@ -369,18 +369,20 @@ pub fn evaluate_dataset(
             let mut e = ImageErrors::of(id, split, &pred.depth.depth_mm, &truth.depth_mm, &predictor.mask);
             if let (Some(force), Some(wrench)) = (&pred.force, s.force_label()) {
                 let pressure = match &s.pressure {
-                    Some(rel) => Some(sensor::PressureMap::load_png(&data.join(rel))?),
+                    Some(rel) => {
+                        let path = data.join(rel);
+                        let p = sensor::PressureMap::load_png(&path)?;
+                        if p.size_px != crop {
+                            anyhow::bail!(
+                                "{}: pressure map is {}x{0}, the bundle's crop is {crop}",
+                                path.display(),
+                                p.size_px
+                            );
+                        }
+                        Some(p)
+                    }
                     None => None,
                 };
-                if let Some(p) = &pressure
-                    && p.size_px != crop
-                {
-                    anyhow::bail!(
-                        "{}: pressure map is {}x{0}, the bundle's crop is {crop}",
-                        data.join(s.pressure.as_ref().unwrap()).display(),
-                        p.size_px
-                    );
-                }
                 e = e.with_force(force, wrench, pressure.as_ref().map(|p| p.pressure_kpa.as_slice()), &predictor.mask);
             }
             errors.push(e);

@@ -288,14 +288,8 @@ impl Predictor {
             .chunks_mut(oh * ow)
             .zip(depths)
             .map(|(kpa, depth)| {
-                if let Some(tare) = &self.tare_kpa {
-                    kpa.iter_mut().zip(tare).for_each(|(v, t)| *v -= t);
-                }
-                if self.border_fill.len() == kpa.len() {
-                    self.border_fill.apply(kpa);
-                }
-                let full = sensor::resample::resize_plane(kpa, [oh, ow], [crop as usize, crop as usize]);
-                let pressure_kpa = full
+                let pressure_kpa = self
+                    .on_crop(kpa, self.tare_kpa.as_deref(), [oh, ow])
                     .iter()
                     .zip(&depth.depth_mm)
                     .map(|(&p, &d)| if d > sensor::CONTACT_THRESHOLD_MM { p.max(0.0) } else { 0.0 })
@@ -356,21 +350,28 @@ impl Predictor {
         self.output_mm(out)
             .chunks_mut(oh * ow)
             .map(|mm| {
-                if let Some(tare) = &self.tare_mm {
-                    mm.iter_mut().zip(tare).for_each(|(v, t)| *v -= t);
-                }
-                // Rim pixels of the crop interpolate between output pixels; the untrained ones
-                // outside the useful disk would leak into them (0.45 mm ghosts on untouched frames).
-                if self.border_fill.len() == mm.len() {
-                    self.border_fill.apply(mm);
-                }
-                // Not `image`'s resize: it clamps float pixels to [0, 1].
-                let full = sensor::resample::resize_plane(mm, [oh, ow], [crop as usize, crop as usize]);
+                let full = self.on_crop(mm, self.tare_mm.as_deref(), [oh, ow]);
                 let depth_mm =
                     full.iter().zip(&self.mask).map(|(&d, &m)| if m { d.clamp(0.0, max) } else { 0.0 }).collect();
                 DepthMap { size_px: crop, depth_mm }
             })
             .collect()
+    }
+
+    /// One output plane (`[oh, ow]`) on the crop's grid: `tare` subtracted, the border filled,
+    /// resized. Depth and pressure alike.
+    fn on_crop(&self, plane: &mut [f32], tare: Option<&[f32]>, [oh, ow]: [usize; 2]) -> Vec<f32> {
+        if let Some(tare) = tare {
+            plane.iter_mut().zip(tare).for_each(|(v, t)| *v -= t);
+        }
+        // Rim pixels of the crop interpolate between output pixels; the untrained ones outside
+        // the useful disk would leak into them (0.45 mm ghosts on untouched frames).
+        if self.border_fill.len() == plane.len() {
+            self.border_fill.apply(plane);
+        }
+        // Not `image`'s resize: it clamps float pixels to [0, 1].
+        let crop = self.file.sensor.crop_size_px as usize;
+        sensor::resample::resize_plane(plane, [oh, ow], [crop, crop])
     }
 
     /// The network's output (network units) in millimetres, planes one after another.

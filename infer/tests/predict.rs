@@ -6,7 +6,7 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use common::{bundle, bundle_file, dataset_of, pressed};
+use common::{bundle, bundle_file, dataset_of, dataset_with, pressed};
 
 use dataset::{Renderer, SensorUnit};
 use infer::Predictor;
@@ -95,24 +95,11 @@ fn samples_under_their_own_looks_are_read_against_their_own_untouched_frames() {
     let dir = tmp.path().join("bundle");
     let renderer = bundle(&dir);
     let data = tmp.path().join("data");
-    let kit = dataset::Kit::procedural(25.0);
-    let params = formats::dataset::GeneratorParams {
-        unit: Some(3),
+    dataset_with(&renderer, &data, 4, |params| formats::dataset::GeneratorParams {
         test_fraction: 1.0,
         random_looks: true,
-        ..formats::dataset::GeneratorParams::new(4, 4, &kit.source)
-    };
-    let unit = renderer.unit().clone();
-    dataset::generate::Generator {
-        out: data.clone(),
-        sensor: &unit.sensor,
-        kit: &kit,
-        params,
-        skipping: dataset::Skipping::On,
-        renderer: Some(&renderer),
-    }
-    .run()
-    .unwrap();
+        ..params
+    });
     let device = model::backend::default_device();
     let p = Predictor::load(&dir, &device).unwrap();
     let manifest = formats::dataset::Manifest::load(&data).unwrap();

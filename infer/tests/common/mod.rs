@@ -60,12 +60,22 @@ pub fn bundle_with(
 /// `count` samples of `renderer`'s unit (3) from the procedural kit, `test_fraction` of them
 /// test samples, with force labels.
 pub fn dataset_of(renderer: &Renderer, data: &Path, count: u32, test_fraction: f32) {
+    dataset_with(renderer, data, count, |params| formats::dataset::GeneratorParams { test_fraction, ..params });
+}
+
+/// `count` samples of `renderer`'s unit (3) from the procedural kit (generator seed 4), with the
+/// generator's parameters as `edit` makes them.
+pub fn dataset_with(
+    renderer: &Renderer,
+    data: &Path,
+    count: u32,
+    edit: impl FnOnce(formats::dataset::GeneratorParams) -> formats::dataset::GeneratorParams,
+) {
     let kit = dataset::Kit::procedural(25.0);
-    let params = formats::dataset::GeneratorParams {
+    let params = edit(formats::dataset::GeneratorParams {
         unit: Some(3),
-        test_fraction,
         ..formats::dataset::GeneratorParams::new(4, count, &kit.source)
-    };
+    });
     let unit = renderer.unit().clone();
     dataset::generate::Generator {
         out: data.to_path_buf(),
