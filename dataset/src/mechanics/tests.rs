@@ -256,7 +256,7 @@ fn the_solved_surface_around_a_sphere_is_hertzs() {
     let n = sensor.crop_size_px as usize;
     let mut worst = [0f64; 3];
     let mut compared = [0usize; 3];
-    for i in 0..n * n {
+    for (i, &sunk) in sink.iter().enumerate().take(n * n) {
         let dir = dome.dir(i);
         if dir == DVec3::ZERO {
             continue;
@@ -264,7 +264,7 @@ fn the_solved_surface_around_a_sphere_is_hertzs() {
         // Distance along the dome from the pole (the half-space's r).
         let r = R * dir.z.clamp(-1.0, 1.0).acos();
         let want = hertz_surface_mm(r_sphere, depth, r);
-        let got = sink[i] as f64;
+        let got = sunk as f64;
         // Inside the contact, beyond it out to 4 radii (where the surface is shaded most),
         // and far out against the point force.
         let band = if r < 0.8 * a {
