@@ -138,21 +138,24 @@ impl Contact {
         // elastomer gets its own sum.
         let finest_mm = near.iter().map(|n| self.patches[n.patch].spacing_mm).fold(f64::INFINITY, f64::min);
         let stride = ((finest_mm / dome.mm_per_step()).floor() as usize).clamp(1, MAX_STRIDE);
-        let axis = |len: usize| -> Vec<usize> {
-            let mut at: Vec<usize> = (0..len).step_by(stride).collect();
-            if *at.last().unwrap() != len - 1 {
-                at.push(len - 1);
-            }
+        // Lattice lines at whole multiples of the stride in frame pixels (and the grid's edges),
+        // so that a crop and the whole frame place them alike and render the same press the same.
+        let axis = |len: usize, origin_px: f64| -> Vec<usize> {
+            let first = (origin_px / grid.step_px).round() as i64;
+            let mut at: Vec<usize> = (0..len)
+                .filter(|&v| v == 0 || v == len - 1 || (first + v as i64).rem_euclid(stride as i64) == 0)
+                .collect();
+            at.dedup();
             at
         };
-        let (xs, ys) = (axis(width), axis(height));
+        let (xs, ys) = (axis(width, grid.origin_u_px), axis(height, grid.origin_v_px));
         let lattice: Vec<Option<f64>> = (0..xs.len() * ys.len())
             .into_par_iter()
             .with_min_len(64)
             .map(|k| exact(xs[k % xs.len()], ys[k / xs.len()]))
             .collect();
         let cell = |v: usize, at: &[usize]| -> (usize, f64) {
-            let k = (v / stride).min(at.len() - 2);
+            let k = (at.partition_point(|&a| a <= v) - 1).min(at.len() - 2);
             (k, (v - at[k]) as f64 / (at[k + 1] - at[k]) as f64)
         };
         // Each column's and row's lattice cell and weight, once.
