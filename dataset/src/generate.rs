@@ -9,7 +9,7 @@ use sensor::{DepthMap, PressureMap, Sensor};
 
 use formats::dataset::{
     DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, LIFTED_Z_TRAVEL_MM, Manifest, SampleRecord,
-    SplitSummary, Wrench, sample_name,
+    SplitSummary, sample_name,
 };
 use formats::fs::{write_atomic, write_atomic_unsynced};
 use formats::{SplitMix64, write_json};
@@ -17,7 +17,7 @@ use sensor::frame::encode_png_rgb;
 
 use crate::kit::{Kit, Split, Trial};
 use crate::looks::random_look;
-use crate::mechanics::{Dome, GridConfig, Material, force_label};
+use crate::mechanics::{Dome, ForceLabel, GridConfig, Material, force_label};
 use crate::raycast::{RayBundle, RayCaster, Skipping};
 use crate::render::Renderer;
 use crate::resumable;
@@ -209,13 +209,13 @@ impl Generator<'_> {
             let bytes = depth.to_png_u8(self.sensor.max_depth_mm as f32);
             write_atomic_unsynced(&self.out.join(format!("depth_u8/{name}.png")), &bytes)?;
         }
-        let (pressure, wrench) = match dome {
+        let (pressure, wrench, contact) = match dome {
             Some(dome) => {
                 let material = self.renderer.map_or(Material::PAPER, |r| r.unit().elastomer.material());
-                let (rel, wrench) = write_force_label(&self.out, &name, dome, &depth, &material)?;
-                (Some(rel), Some(wrench))
+                let (rel, label) = write_force_label(&self.out, &name, dome, &depth, &material)?;
+                (Some(rel), Some(label.wrench), Some(label.contact))
             }
-            None => (None, None),
+            None => (None, None, None),
         };
         let (mut image, mut reference) = (None, None);
         if let Some(renderer) = self.renderer {
@@ -228,7 +228,8 @@ impl Generator<'_> {
             };
             // A unit that streams JPEG stores its stream's bytes, as a rig logs them.
             let seed = noise_seed(&self.params, id);
-            let capture = renderer.capture(&depth.depth_mm, Some(seed));
+            // The image's membrane is the surface of the contact the label solved.
+            let capture = renderer.capture_solved(&depth.depth_mm, contact.as_ref(), Some(seed));
             let (ext, bytes) = capture.file();
             let rel = format!("images/{name}.{ext}");
             write_atomic_unsynced(&self.out.join(&rel), &bytes)?;
@@ -303,20 +304,21 @@ impl Generator<'_> {
 }
 
 /// Solves the contact `depth` shows and writes its pressure map as `pressure/NAME.png` under
-/// `out`; returns the file (relative to `out`) and the wrench for the sample's record.
+/// `out`; returns the file (relative to `out`) and the label (its wrench for the sample's
+/// record, its contact for the image).
 pub fn write_force_label(
     out: &Path,
     name: &str,
     dome: &Dome,
     depth: &DepthMap,
     material: &Material,
-) -> Result<(String, Wrench)> {
-    let label = force_label(dome, depth, material, &GridConfig::default())
+) -> Result<(String, ForceLabel)> {
+    let mut label = force_label(dome, depth, material, &GridConfig::default())
         .with_context(|| format!("sample {name}'s contact"))?;
     let rel = format!("pressure/{name}.png");
-    let map = PressureMap { size_px: depth.size_px, pressure_kpa: label.pressure_kpa };
+    let map = PressureMap { size_px: depth.size_px, pressure_kpa: std::mem::take(&mut label.pressure_kpa) };
     write_atomic_unsynced(&out.join(&rel), &map.to_png())?;
-    Ok((rel, label.wrench))
+    Ok((rel, label))
 }
 
 /// The unit's description, its true geometry and its no-contact image.

@@ -322,8 +322,8 @@ impl Labeller<'_> {
         write_atomic_unsynced(&self.out.join(&image_rel), &encode_png_rgb(&crop))?;
         let (pressure, wrench) = match (dome, &self.force) {
             (Some(dome), Some(material)) => {
-                let (rel, wrench) = write_force_label(&self.out, &name, dome, &depth, material)?;
-                (Some(rel), Some(wrench))
+                let (rel, label) = write_force_label(&self.out, &name, dome, &depth, material)?;
+                (Some(rel), Some(label.wrench))
             }
             _ => (None, None),
         };

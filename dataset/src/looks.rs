@@ -19,7 +19,8 @@ use crate::unit::{Coating, SensorUnit};
 ///   primary colour with 0 to 35 % cross-talk into each other channel, the ring's tint 0.8 to
 ///   1.2 per channel, brightness 0.6 to 1.4; half-distance 14 to 32 mm (25 mm dome).
 /// - coating: albedo 0.6 to 0.95, specular 0.03 to 0.45, shininess 8 to 50.
-/// - gel: drape 0.1 to 1.5 mm.
+/// - gel: the saw-tooth shot's drape 0.1 to 1.5 mm. Contact frames shade the contact model's
+///   solved surface, which depends on the indenter alone (not on the silicone's modulus).
 /// - camera: exposure x0.7 to x1.35, vignetting 0.05 to 0.5, housing 0 to 20 grey levels,
 ///   ambient 2 to 20, read noise 0.5 to 4 grey levels, shot gain 0.005 to 0.08, blur 0.2 to 1.5
 ///   px, gamma 1 to 2.4; JPEG at quality 75 to 95 in half the looks, with 4:2:0 chroma in three

@@ -16,8 +16,9 @@ use formats::SplitMix64;
 use crate::mechanics::Material;
 
 /// Format version of `unit.json` (2: the elastomer's drape and the camera's response, blur and
-/// compression; 3: the elastomer's Young's modulus and Poisson's ratio).
-pub const UNIT_FORMAT_VERSION: u32 = 3;
+/// compression; 3: the elastomer's Young's modulus and Poisson's ratio; 4: contact frames shade
+/// the contact model's solved surface, the drape is the saw-tooth shot's alone).
+pub const UNIT_FORMAT_VERSION: u32 = 4;
 
 /// One lit LED: a point light with a soft fall-off (the LEDs sit behind a diffuser).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -39,23 +40,28 @@ pub struct Coating {
     pub shininess: f64,
 }
 
-/// The silicone between the indenter and the coating. A membrane bonded to a gel cannot follow a
-/// step: beyond a contact's edge it drapes down from the edge's depth instead of snapping back.
-/// What the camera shades is that draped surface; the ground truth stays the rigid indenter's
-/// ray-cast depth, as in the paper.
+/// The silicone between the indenter and the coating. What the camera shades is the membrane:
+/// the surface the contact model solves (`mechanics::Contact::sink_mm`), which the indenter
+/// pushes in where it touches and which sags around the contact, bridging what the gel cannot
+/// follow; the ground truth stays the rigid indenter's ray-cast depth, as in the paper.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Elastomer {
-    /// Length (mm, along the surface) over which the drape beyond a contact edge falls to 1/e of
-    /// the edge's depth; a thicker gel layer drapes farther. 0: the membrane follows the
-    /// indenter exactly.
+    /// The saw-tooth calibration shot's membrane only: beyond each tooth's drop it falls off as
+    /// `exp(-distance / drape_mm)` from the tip's depth (mm along the surface). The shot does
+    /// not shade the solved surface because the calibration does not yet read its bridge
+    /// (`SawToothShot::solved_membrane`).
     pub drape_mm: f64,
     /// Young's modulus (MPa) of the cured silicone; absent in older `unit.json`: the paper's
     /// estimate ([`Material::PAPER`]). A 20:1 mix cured a little warmer or longer is stiffer.
+    /// It sets the pressure labels; the shaded surface does not depend on it.
     #[serde(default = "paper_modulus")]
     pub youngs_modulus_mpa: f64,
     /// Poisson's ratio (nearly incompressible silicone); absent in older files: the paper's.
     #[serde(default = "paper_poisson")]
     pub poisson_ratio: f64,
+    /// The first image model's membrane: it follows the indenter exactly (no solved surface).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub rigid_membrane: bool,
 }
 
 fn paper_modulus() -> f64 {
@@ -146,6 +152,7 @@ impl SensorUnit {
             coating: Coating { albedo: 0.8, specular: 0.25, shininess: 20.0 },
             elastomer: Elastomer {
                 drape_mm: 0.5,
+                rigid_membrane: false,
                 youngs_modulus_mpa: Material::PAPER.youngs_modulus_mpa,
                 poisson_ratio: Material::PAPER.poisson_ratio,
             },
@@ -228,6 +235,7 @@ impl SensorUnit {
     /// membrane follows the indenter, through a sharp, linear camera without JPEG.
     pub fn with_first_image_model(&self) -> Self {
         let mut unit = self.clone();
+        unit.elastomer.rigid_membrane = true;
         unit.elastomer.drape_mm = 0.0;
         unit.camera = Camera { blur_px: 0.0, gamma: 1.0, jpeg_quality: None, ..unit.camera };
         unit

@@ -247,7 +247,8 @@ pub struct GeneratorParams {
     pub c_axis_deg: Angles,
     /// The renderer's image model the images were made with ([`IMAGE_MODEL`]), so that a
     /// resume never mixes two: 1 shaded the rigid surface through a sharp, linear camera; 2
-    /// shades the membrane's drape and adds lens blur, a tone curve and the unit's JPEG.
+    /// shaded the membrane's drape and added lens blur, a tone curve and the unit's JPEG; 3
+    /// shades the contact model's solved surface instead of the drape.
     #[serde(default = "first_image_model")]
     pub image_model: u32,
     /// Whether each sample is rendered under its own random look (lights, coating, gel,
@@ -263,7 +264,7 @@ pub struct GeneratorParams {
 }
 
 /// The image model this version renders (see [`GeneratorParams::image_model`]).
-pub const IMAGE_MODEL: u32 = 2;
+pub const IMAGE_MODEL: u32 = 3;
 
 fn first_image_model() -> u32 {
     1

@@ -28,8 +28,8 @@ pub struct Args {
     /// Samples for the generator's throughput.
     #[arg(long, default_value_t = 200)]
     samples: u32,
-    /// Simulated unit whose images the generator renders (unit 1 streams JPEG and drapes
-    /// most: the slowest of the first ten).
+    /// Simulated unit whose images the generator renders (unit 1 streams JPEG: the slowest of
+    /// the first ten).
     #[arg(long, default_value_t = 1)]
     unit: u64,
 }

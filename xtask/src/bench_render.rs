@@ -29,7 +29,8 @@ pub fn run(args: Args) -> Result<()> {
     let sensor = &unit.sensor;
     let (setup_s, renderer) = once(|| Renderer::for_crop(&unit));
     // The same unit through the first image model (the membrane follows the indenter; a sharp,
-    // linear camera without JPEG): what the drape, blur, tone curve and JPEG cost, same run.
+    // linear camera without JPEG): what the solved membrane, blur, tone curve and JPEG cost,
+    // same run.
     let rigid = Renderer::for_crop(&unit.with_first_image_model());
     let kit = Kit::procedural(sensor.radius_mm as f32);
     let rays = RayBundle::new(sensor);
@@ -39,7 +40,7 @@ pub fn run(args: Args) -> Result<()> {
         "scene (place the meshes)",
         "ray caster build",
         "ray cast",
-        "render (drape, shade, blur, noise, tone, JPEG encode)",
+        "render (solve, membrane, shade, blur, noise, tone, JPEG)",
         COMPARISON,
         "image file (PNG; a JPEG unit's stream as is)",
         "depth PNG encode",

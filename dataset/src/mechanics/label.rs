@@ -1,43 +1,104 @@
 //! A sample's force labels from its depth map: the contact solved where the map says the scene
 //! overlaps the dome, its pressure resampled onto the map's own pixels.
 
-use glam::DVec3;
+use std::sync::Arc;
+
+use glam::{DVec3, Vec3};
 use sensor::{DepthMap, PNG_UM_PER_STEP, Sensor};
 
 use super::{Contact, GridConfig, Material, MechanicsError, Wrench};
 use crate::raycast::RayBundle;
+use crate::render::PixelGrid;
 
-/// The dome as the depth map's pixels see it, prepared once per sensor.
+/// The dome as a pixel grid's samples see it (the depth map's crop, or a renderer's grid),
+/// prepared once per sensor and grid.
 pub struct Dome {
     radius_mm: f64,
-    n: usize,
-    /// Unit direction of each crop pixel (zero outside the useful disk).
-    dirs: Vec<DVec3>,
+    grid: PixelGrid,
+    /// Unit direction of each grid sample (zero where it sees no elastomer).
+    dirs: Arc<[Vec3]>,
     sensor: Sensor,
+    /// Millimetres of the surface between two neighbouring samples at the grid's centre.
+    mm_per_step: f64,
 }
 
 impl Dome {
+    /// The dome as the sensor's crop sees it, one sample per pixel.
     pub fn new(sensor: &Sensor, rays: &RayBundle) -> Self {
         let n = sensor.crop_size_px as usize;
-        let mut dirs = vec![DVec3::ZERO; n * n];
+        let mut dirs = vec![Vec3::ZERO; n * n];
         for (d, &i) in rays.dirs.iter().zip(&rays.indices) {
-            dirs[i as usize] = d.as_dvec3();
+            dirs[i as usize] = Vec3::from(*d);
         }
-        Dome { radius_mm: sensor.radius_mm, n, dirs, sensor: sensor.clone() }
+        Dome::on_grid(sensor, PixelGrid::crop(sensor), dirs.into())
     }
 
-    /// Unit direction of crop pixel `i` (zero outside the useful disk).
-    #[cfg(test)]
+    /// The dome as `grid`'s samples see it: `dirs` holds each sample's unit direction, zero
+    /// where the sample sees no elastomer.
+    pub fn on_grid(sensor: &Sensor, grid: PixelGrid, dirs: Arc<[Vec3]>) -> Self {
+        assert_eq!(dirs.len(), grid.len(), "one direction per grid sample");
+        // The sample nearest the optical centre and its right-hand neighbour, through the lens.
+        let (u, v) = (sensor.correspondence.centre_u_px, sensor.correspondence.centre_v_px);
+        let at = |du: f64| sensor.correspondence.direction(u + du, v).map(|(d, _)| d);
+        let mm_per_step = match (at(0.0), at(grid.step_px)) {
+            (Some(a), Some(b)) => (a.angle_between(b) * sensor.radius_mm).max(1e-6),
+            _ => 1e-6,
+        };
+        Dome { radius_mm: sensor.radius_mm, grid, dirs, sensor: sensor.clone(), mm_per_step }
+    }
+
+    /// Unit direction of grid sample `i` (zero where it sees no elastomer).
     pub(crate) fn dir(&self, i: usize) -> DVec3 {
-        self.dirs[i]
+        self.dirs[i].as_dvec3()
     }
 
-    /// The depth at the crop position where unit `dir` is seen, bilinear between the four
-    /// pixels around it (mm; -1 where it leaves the useful disk).
-    fn depth_along(&self, depth: &DepthMap, dir: DVec3) -> f64 {
-        let Some((u, v)) = self.sensor.correspondence.pixel(dir) else { return -1.0 };
-        let (x0, y0) = self.sensor.crop_to_frame(0, 0);
-        bilinear([self.n, self.n], u - x0, v - y0, |i, j| depth.depth_mm[j * self.n + i] as f64).unwrap_or(-1.0)
+    /// Each grid sample's unit direction (zero where it sees no elastomer).
+    pub(crate) fn dirs(&self) -> &[Vec3] {
+        &self.dirs
+    }
+
+    /// Millimetres of the surface between two neighbouring samples at the optical centre.
+    pub(crate) fn mm_per_step(&self) -> f64 {
+        self.mm_per_step
+    }
+
+    pub(crate) fn grid(&self) -> &PixelGrid {
+        &self.grid
+    }
+
+    /// Grid coordinates (samples, fractional) where unit `dir` is seen, if the lens sees it.
+    pub(crate) fn grid_position(&self, dir: DVec3) -> Option<(f64, f64)> {
+        let (u, v) = self.sensor.correspondence.pixel(dir)?;
+        let g = &self.grid;
+        Some(((u - g.origin_u_px) / g.step_px, (v - g.origin_v_px) / g.step_px))
+    }
+
+    /// The depth at the grid position where unit `dir` is seen, bilinear between the four
+    /// samples around it (mm; -1 where it leaves the grid).
+    fn depth_along(&self, depth_mm: &[f32], dir: DVec3) -> f64 {
+        let Some((x, y)) = self.grid_position(dir) else { return -1.0 };
+        let w = self.grid.width as usize;
+        bilinear([w, self.grid.height as usize], x, y, |i, j| depth_mm[j * w + i] as f64).unwrap_or(-1.0)
+    }
+
+    /// Solves the contact that `depth_mm` (on this grid) shows: its samples above zero, one
+    /// region per 4-connected group. Returns each sample's region (`u32::MAX`: none) beside it.
+    pub fn solve(
+        &self,
+        depth_mm: &[f32],
+        material: &Material,
+        grid: &GridConfig,
+    ) -> Result<(Contact, Vec<u32>), MechanicsError> {
+        assert_eq!(depth_mm.len(), self.grid.len(), "the depth map is on the dome's grid");
+        // A region's outline bounds it: the patches need no more.
+        let (outlines, region_of) = outlines(depth_mm, self.grid.width as usize);
+        let regions =
+            outlines.into_iter().map(|r| r.into_iter().map(|i| self.dir(i as usize)).collect()).collect::<Vec<_>>();
+        let contact = super::solve(self.radius_mm, material, grid, &regions, |dir| {
+            let d = self.depth_along(depth_mm, dir);
+            if d > 0.0 { d } else { -1.0 }
+        })?;
+        Ok((contact, region_of))
     }
 }
 
@@ -60,18 +121,9 @@ pub fn force_label(
     material: &Material,
     grid: &GridConfig,
 ) -> Result<ForceLabel, MechanicsError> {
-    let n = dome.n;
-    assert_eq!(depth.size_px as usize, n, "the depth map is on the dome's crop");
-    // A region's outline bounds it: the patches need no more.
-    let (outlines, region_of) = outlines(depth, n);
-    let regions = outlines
-        .into_iter()
-        .map(|r| r.into_iter().map(|i| dome.dirs[i as usize]).collect())
-        .collect::<Vec<Vec<DVec3>>>();
-    let contact = super::solve(dome.radius_mm, material, grid, &regions, |dir| {
-        let d = dome.depth_along(depth, dir);
-        if d > 0.0 { d } else { -1.0 }
-    })?;
+    let n = depth.size_px as usize;
+    assert_eq!(dome.grid, PixelGrid::crop(&dome.sensor), "force labels are made on the crop");
+    let (contact, region_of) = dome.solve(&depth.depth_mm, material, grid)?;
     let mut pressure_kpa = vec![0f32; n * n];
     // Only pixels near a loaded node can read a pressure: the crop's box around those nodes and
     // their neighbours (the bilinear lookup's reach).
@@ -144,7 +196,7 @@ pub fn force_label(
                         Some([mix(0), mix(1)])
                     }
                     // Beyond the lens' model at a corner: the pixel's own mapping.
-                    _ => contact.patches[*k].project(dome.radius_mm, dome.dirs[i]),
+                    _ => contact.patches[*k].project(dome.radius_mm, dome.dir(i)),
                 };
                 if let Some(st) = st {
                     pressure_kpa[i] = contact.patches[*k].pressure_at(st) as f32;
@@ -155,15 +207,17 @@ pub fn force_label(
     Ok(ForceLabel { pressure_kpa, wrench: contact.wrench(), contact })
 }
 
-/// The outline of each 4-connected group of pixels with depth above zero (its pixels with a
-/// neighbour outside it, crop indices), and each pixel's group (`u32::MAX`: none).
-fn outlines(depth: &DepthMap, n: usize) -> (Vec<Vec<u32>>, Vec<u32>) {
-    let inside = |k: usize| depth.depth_mm[k] > 0.0;
-    let mut seen = vec![false; n * n];
-    let mut group = vec![u32::MAX; n * n];
+/// The outline of each 4-connected group of samples with depth above zero (its samples with a
+/// neighbour outside it, grid indices) on a grid `width` wide, and each sample's group
+/// (`u32::MAX`: none).
+fn outlines(depth_mm: &[f32], width: usize) -> (Vec<Vec<u32>>, Vec<u32>) {
+    let inside = |k: usize| depth_mm[k] > 0.0;
+    let (len, n) = (depth_mm.len(), width);
+    let mut seen = vec![false; len];
+    let mut group = vec![u32::MAX; len];
     let mut out = Vec::new();
     let mut stack = Vec::new();
-    for start in 0..n * n {
+    for start in 0..len {
         if seen[start] || !inside(start) {
             continue;
         }
@@ -177,7 +231,7 @@ fn outlines(depth: &DepthMap, n: usize) -> (Vec<Vec<u32>>, Vec<u32>) {
                 (x > 0).then(|| i - 1),
                 (x + 1 < n).then(|| i + 1),
                 (y > 0).then(|| i - n),
-                (y + 1 < n).then(|| i + n),
+                (i + n < len).then(|| i + n),
             ];
             let mut edge = false;
             for k in neighbours {
@@ -224,7 +278,7 @@ impl super::Patch {
 
 /// The value at `(x, y)` (grid units) between the four nodes around it of a `size` grid read by
 /// `at(i, j)`; `None` unless all four exist. The depth map and the patches' grids both use it.
-fn bilinear(size: [usize; 2], x: f64, y: f64, at: impl Fn(usize, usize) -> f64) -> Option<f64> {
+pub(super) fn bilinear(size: [usize; 2], x: f64, y: f64, at: impl Fn(usize, usize) -> f64) -> Option<f64> {
     let (fx, fy) = (x.floor(), y.floor());
     if !(fx >= 0.0 && fy >= 0.0 && fx + 1.0 < size[0] as f64 && fy + 1.0 < size[1] as f64) {
         return None;

@@ -21,6 +21,7 @@
 mod halfspace;
 mod label;
 mod lcp;
+mod surface;
 
 pub use formats::dataset::Wrench;
 pub use label::{Dome, ForceLabel, force_label};
@@ -133,7 +134,7 @@ pub struct Patch {
 }
 
 impl Patch {
-    fn plane_mm(&self, i: usize, j: usize) -> [f64; 2] {
+    pub(crate) fn plane_mm(&self, i: usize, j: usize) -> [f64; 2] {
         [self.origin_mm[0] + self.spacing_mm * i as f64, self.origin_mm[1] + self.spacing_mm * j as f64]
     }
 
@@ -148,7 +149,7 @@ impl Patch {
         to_map(self.normal, self.e1, self.e2, radius_mm, dir)
     }
 
-    fn node_area_mm2(&self) -> f64 {
+    pub(crate) fn node_area_mm2(&self) -> f64 {
         self.spacing_mm * self.spacing_mm
     }
 }
@@ -157,6 +158,9 @@ impl Patch {
 #[derive(Clone, Debug)]
 pub struct Contact {
     pub radius_mm: f64,
+    /// The plane-strain modulus the contact was solved with (MPa): what turns its forces back
+    /// into the surface's displacement.
+    pub effective_modulus_mpa: f64,
     pub patches: Vec<Patch>,
     /// The patch that solved each region given to [`solve`] (`None` for an empty one).
     pub region_patch: Vec<Option<usize>>,
@@ -238,7 +242,7 @@ pub fn solve(
         let p = &mut patches[pi];
         p.pressure_kpa[k] = f / p.node_area_mm2() * 1e3;
     }
-    Ok(Contact { radius_mm, patches, region_patch, steps })
+    Ok(Contact { radius_mm, effective_modulus_mpa: material.effective_modulus_mpa(), patches, region_patch, steps })
 }
 
 /// `G[a][b]`: how far candidate `a` sinks (mm) under a unit force (N) on candidate `b`.

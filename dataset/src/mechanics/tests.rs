@@ -226,3 +226,62 @@ fn the_fast_angle_agrees_with_libm_everywhere() {
     }
     assert_eq!(super::angle_from(0.0, 0.0), 0.0);
 }
+
+/// Hertz's surface beyond the contact (Johnson, Contact Mechanics, eq. 3.42b): for `r > a`,
+/// `u = p0 / (2 a E*) [(2 a^2 - r^2) asin(a / r) + r a sqrt(1 - a^2 / r^2)]`, and inside
+/// `u = d - r^2 / (2 R_eff)`; far away Boussinesq's `F / (pi E* r)`.
+fn hertz_surface_mm(r_sphere: f64, depth: f64, r: f64) -> f64 {
+    let e_star = Material::PAPER.effective_modulus_mpa();
+    let (force, a) = hertz_force_n(r_sphere, depth);
+    let r_eff = r_sphere * R / (r_sphere + R);
+    if r <= a {
+        return depth - r * r / (2.0 * r_eff);
+    }
+    let p0 = 3.0 * force / (2.0 * std::f64::consts::PI * a * a);
+    p0 / (2.0 * a * e_star) * ((2.0 * a * a - r * r) * (a / r).asin() + r * a * (1.0 - a * a / (r * r)).sqrt())
+}
+
+/// The membrane the renderer shades: the solved surface around a sphere pressed at the top
+/// follows Hertz's closed form inside and beyond the contact, through the crop's pixels; the
+/// far field falls as Boussinesq's point force; without contact nothing sinks.
+#[test]
+fn the_solved_surface_around_a_sphere_is_hertzs() {
+    use crate::raycast::RayBundle;
+    let sensor = sensor::Sensor::default();
+    let dome = Dome::new(&sensor, &RayBundle::new(&sensor));
+    let (r_sphere, depth) = (6.0, 0.3);
+    let contact = hertz_case(r_sphere, depth, &GridConfig::default());
+    let sink = contact.sink_mm(&dome);
+    let (_, a) = hertz_force_n(r_sphere, depth);
+    let n = sensor.crop_size_px as usize;
+    let mut worst = [0f64; 3];
+    let mut compared = [0usize; 3];
+    for (i, &sunk) in sink.iter().enumerate().take(n * n) {
+        let dir = dome.dir(i);
+        if dir == DVec3::ZERO {
+            continue;
+        }
+        // Distance along the dome from the pole (the half-space's r).
+        let r = R * dir.z.clamp(-1.0, 1.0).acos();
+        let want = hertz_surface_mm(r_sphere, depth, r);
+        let got = sunk as f64;
+        // Inside the contact, beyond it out to 4 radii (where the surface is shaded most),
+        // and far out against the point force.
+        let band = if r < 0.8 * a {
+            0
+        } else if (1.2 * a..4.0 * a).contains(&r) {
+            1
+        } else if (8.0 * a..12.0 * a).contains(&r) {
+            2
+        } else {
+            continue;
+        };
+        worst[band] = worst[band].max((got - want).abs() / want);
+        compared[band] += 1;
+    }
+    eprintln!("solved surface against Hertz: worst relative error {worst:?} over {compared:?} pixels");
+    assert!(compared.iter().all(|&c| c > 20), "{compared:?}");
+    assert!(worst[0] <= 0.02 && worst[1] <= 0.05 && worst[2] <= 0.06, "{worst:?}");
+    let none = solve(R, &Material::PAPER, &GridConfig::default(), &[], |_| -1.0).unwrap();
+    assert!(none.sink_mm(&dome).iter().all(|&s| s == 0.0));
+}

@@ -7,19 +7,24 @@
 //! which is how the real sensor encodes the normal in colour. Vignetting, the housing beyond the
 //! elastomer's rim and sensor noise follow; the result is 8-bit RGB.
 //!
-//! The shaded surface is the membrane's, not the indenter's: it drapes beyond contact edges
-//! (`optics::Drape`). The lens blurs, the camera adds noise in its linear sensor, applies its
-//! tone curve and may compress to JPEG. Each of these is the unit's (`SensorUnit`).
+//! The shaded surface is the membrane's, not the indenter's: the contact model's solved surface
+//! (`mechanics::Contact::sink_mm`), pushed in by the indenter where it touches, sagging around
+//! it and bridging what the gel cannot follow. The lens blurs, the camera adds noise in its
+//! linear sensor, applies its tone curve and may compress to JPEG. Each of these is the unit's
+//! (`SensorUnit`).
 //!
 //! Only what changes is shaded: the no-contact image of the unit is cached, and a frame re-shades
-//! just the pixels whose depth (or a neighbour's, through the normal) differs from zero.
+//! just the pixels whose membrane (or a neighbour's, through the normal) has moved: none
+//! without contact, the sag's reach (down to a micrometre) with one.
 
+use std::borrow::Cow;
 use std::sync::Arc;
 
 use glam::Vec3;
 use image::RgbImage;
 use sensor::frame::Chroma;
 
+use crate::mechanics::{Contact, Dome, GridConfig};
 use crate::unit::SensorUnit;
 
 mod grid;
@@ -28,11 +33,13 @@ mod noise;
 mod optics;
 #[allow(unsafe_code)] // AVX2 shading lanes
 mod shade;
+mod subgrid;
 
 pub use grid::PixelGrid;
 use noise::{Finish, GaussianNoise, quantise};
-use optics::{Drape, LensBlur, Tone};
+use optics::{LensBlur, Tone};
 use shade::Lighting;
+use subgrid::Spread;
 
 /// What a sample point sees.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -89,6 +96,10 @@ struct Geometry {
     /// normal's differences use: one outside the grid or off the elastomer is replaced by the
     /// sample itself (a one-sided difference). Bits, not indices, to keep the table small.
     neighbours: Vec<u8>,
+    /// The elastomer as this grid sees it, for the contact model's surface.
+    dome: Dome,
+    /// Millimetres of the surface between two neighbouring samples at the grid's centre.
+    mm_per_step: f64,
 }
 
 /// Renders images of one unit on one pixel grid; build once, render many frames.
@@ -102,9 +113,10 @@ pub struct Renderer {
     /// The same before the lens' blur (empty for a sharp lens): a frame's change is shaded
     /// against it and then blurred alone.
     sharp_reference: Radiance,
-    drape: Option<Drape>,
     blur: Option<LensBlur>,
     tone: Option<Tone>,
+    /// How finely a contact this renderer solves itself is gridded.
+    solve_grid: GridConfig,
 }
 
 impl Renderer {
@@ -140,7 +152,13 @@ impl Renderer {
                 bits
             })
             .collect();
-        Renderer::dress(unit, Arc::new(Geometry { grid, dirs, seen, theta_ratio, neighbours }))
+        let elastomer_dirs: Vec<Vec3> =
+            dirs.iter().zip(&seen).map(|(&d, &k)| if k == Seen::Elastomer { d } else { Vec3::ZERO }).collect();
+        let dome = Dome::on_grid(s, grid, elastomer_dirs.into());
+        let centre = (h / 2) * w + w / 2;
+        let mm_per_step =
+            (dirs[centre].angle_between(dirs[(centre + 1).min(grid.len() - 1)]) as f64 * s.radius_mm).max(1e-6);
+        Renderer::dress(unit, Arc::new(Geometry { grid, dirs, seen, theta_ratio, neighbours, dome, mm_per_step }))
     }
 
     /// The same unit's geometry under another look (`looks::random_look`): lights, coating,
@@ -156,11 +174,10 @@ impl Renderer {
 
     /// A renderer of `unit`'s look on `geometry` (computed for `unit`'s sensor and lens).
     fn dress(unit: &SensorUnit, geometry: Arc<Geometry>) -> Renderer {
-        let s = &unit.sensor;
         let g = &*geometry;
         let vignetting = unit.camera.vignetting as f32;
         let vignette: Vec<f32> = g.theta_ratio.iter().map(|&t| (1.0 - vignetting * t * t).max(0.0)).collect();
-        let (w, h) = (g.grid.width as usize, g.grid.height as usize);
+        let w = g.grid.width as usize;
         let lighting = Lighting::new(unit);
         let housing = unit.camera.housing_level as f32;
         let reference = (0..g.grid.len())
@@ -169,10 +186,6 @@ impl Renderer {
                 _ => [0.0; 3],
             })
             .collect();
-        // Millimetres of the surface between two neighbouring samples at the grid's centre.
-        let centre = (h / 2) * w + w / 2;
-        let mm_per_step =
-            (g.dirs[centre].angle_between(g.dirs[(centre + 1).min(g.grid.len() - 1)]) as f64 * s.radius_mm).max(1e-6);
         let step_px = g.grid.step_px;
         let mut renderer = Renderer {
             unit: unit.clone(),
@@ -181,9 +194,9 @@ impl Renderer {
             lighting,
             reference,
             sharp_reference: Vec::new(),
-            drape: Drape::new(unit.elastomer.drape_mm, mm_per_step),
             blur: LensBlur::new(unit.camera.blur_px / step_px),
             tone: Tone::new(unit.camera.gamma),
+            solve_grid: GridConfig::default(),
         };
         let elastomer: Vec<u32> = (0..renderer.geometry.grid.len())
             .filter(|&i| renderer.geometry.seen[i] == Seen::Elastomer)
@@ -199,6 +212,13 @@ impl Renderer {
             renderer.sharp_reference = std::mem::replace(&mut renderer.reference, blurred);
         }
         renderer
+    }
+
+    /// The same renderer solving the contacts it is not given on `grid` (a finer grid for a
+    /// scene whose detail the default's nodes would not resolve, such as the saw-tooth's teeth).
+    pub fn with_solve_grid(mut self, grid: GridConfig) -> Self {
+        self.solve_grid = grid;
+        self
     }
 
     /// Renderer for the crop of `sensor`, which must be the unit's own geometry.
@@ -225,10 +245,10 @@ impl Renderer {
     }
 
     /// Radiance through the lens of a frame whose indenter stands `depth_mm` deep at each sample
-    /// point: the reference, with what the draped membrane changes shaded again. Returns the
+    /// point: the reference, with what the membrane changes shaded again. Returns the
     /// radiance and how many samples differ from the reference.
     pub fn radiance(&self, depth_mm: &[f32]) -> (Radiance, usize) {
-        let (indices, shaded) = self.frame_changes(depth_mm);
+        let (indices, shaded) = self.frame_changes(depth_mm, None);
         let mut out = self.reference.clone();
         for (&i, v) in indices.iter().zip(shaded) {
             out[i as usize] = v;
@@ -245,16 +265,69 @@ impl Renderer {
         [pick(0, i.wrapping_sub(1)), pick(1, i + 1), pick(2, i.wrapping_sub(w)), pick(3, i + w)]
     }
 
+    /// The membrane over the rigid `depth_mm`: the surface the contact model solves (`contact`
+    /// if the caller has solved it on this depth, else solved here), on the indenter wherever
+    /// the indenter's detail between two nodes stands deeper, and in the gaps beside that
+    /// detail lowered by its excess spread over the solve's node spacing (`subgrid`), so that
+    /// the surface does not step back to the coarse solution. It never lies above the indenter.
+    pub fn membrane<'a>(&self, depth_mm: &'a [f32], contact: Option<&Contact>) -> Cow<'a, [f32]> {
+        if self.unit.elastomer.rigid_membrane || !depth_mm.iter().any(|&d| d > 0.0) {
+            return Cow::Borrowed(depth_mm);
+        }
+        let solved;
+        let contact = match contact {
+            Some(c) => c,
+            None => {
+                let material = self.unit.elastomer.material();
+                match self.geometry.dome.solve(depth_mm, &material, &self.solve_grid) {
+                    Ok((c, _)) => {
+                        solved = c;
+                        &solved
+                    }
+                    Err(e) => {
+                        // A scene the contact model cannot settle still has an image: the rigid
+                        // surface's, said on stderr.
+                        eprintln!("warning: rendering the indenter's surface, not the membrane's: {e}");
+                        return Cow::Borrowed(depth_mm);
+                    }
+                }
+            }
+        };
+        let mut sink = contact.sink_mm(&self.geometry.dome);
+        let excess: Vec<f32> = depth_mm.iter().zip(&sink).map(|(&d, &s)| (d - s).max(0.0)).collect();
+        let spacing_mm = contact
+            .patches
+            .iter()
+            .filter(|p| p.pressure_kpa.iter().any(|&k| k > 0.0))
+            .map(|p| p.spacing_mm)
+            .fold(0f64, f64::max);
+        let width = self.geometry.grid.width as usize;
+        let spread = Spread::new(spacing_mm, self.geometry.mm_per_step).map(|s| s.apply(&excess, width).into_owned());
+        for (i, (s, &d)) in sink.iter_mut().zip(depth_mm).enumerate() {
+            // Where the indenter reaches the coarse surface the membrane lies on it; in the gaps
+            // the surface is the solution plus what the unresolved contact next to it adds.
+            *s = if *s <= d { d } else { *s + spread.as_ref().map_or(0.0, |e| e[i]) };
+        }
+        Cow::Owned(sink)
+    }
+
+    /// The saw-tooth shot's membrane over the rigid `depth_mm`: beyond each drop it falls off as
+    /// `exp(-distance / drape_mm)` from the edge's depth (`subgrid::Spread`, the same spread the
+    /// solved membrane uses below its grid).
+    pub(crate) fn draped<'a>(&self, depth_mm: &'a [f32], drape_mm: f64) -> Cow<'a, [f32]> {
+        match Spread::new(drape_mm, self.geometry.mm_per_step) {
+            Some(spread) => spread.apply(depth_mm, self.geometry.grid.width as usize),
+            None => Cow::Borrowed(depth_mm),
+        }
+    }
+
     /// The samples (grid order) where the frame's radiance through the lens differs from the
-    /// reference, and their values: the membrane's drape over the rigid depth, shaded, and the
-    /// change blurred.
-    fn frame_changes(&self, depth_mm: &[f32]) -> (Vec<u32>, Radiance) {
+    /// reference, and their values: the membrane over the rigid depth, shaded, and the change
+    /// blurred.
+    fn frame_changes(&self, depth_mm: &[f32], contact: Option<&Contact>) -> (Vec<u32>, Radiance) {
         assert_eq!(depth_mm.len(), self.geometry.grid.len(), "depth map does not match the render grid");
         let width = self.geometry.grid.width as usize;
-        let shape = match &self.drape {
-            Some(drape) => drape.apply(depth_mm, width),
-            None => std::borrow::Cow::Borrowed(depth_mm),
-        };
+        let shape = self.membrane(depth_mm, contact);
         let (indices, shaded) = self.changes(&shape);
 
         let Some(blur) = &self.blur else {
@@ -392,8 +465,14 @@ impl Renderer {
     /// [`Renderer::render`] as the camera delivers it: for a unit that streams JPEG, the JPEG's
     /// bytes, which a dataset stores as they are (as a rig logs its camera's stream).
     pub fn capture(&self, depth_mm: &[f32], noise_seed: Option<u64>) -> Capture {
+        self.capture_solved(depth_mm, None, noise_seed)
+    }
+
+    /// [`Renderer::capture`] with the contact of `depth_mm` already solved (on any grid of the
+    /// same sensor): the generator solves it once for the pressure label and the image.
+    pub fn capture_solved(&self, depth_mm: &[f32], contact: Option<&Contact>, noise_seed: Option<u64>) -> Capture {
         const BLOCK: usize = 64;
-        let (indices, shaded) = self.frame_changes(depth_mm);
+        let (indices, shaded) = self.frame_changes(depth_mm, contact);
         let mut noise = noise_seed.map(|seed| GaussianNoise::new(seed, &self.unit));
         let mut bytes = vec![0u8; self.geometry.grid.len() * 3];
         let mut block = [[0f32; 3]; BLOCK];
@@ -514,9 +593,8 @@ mod tests {
         depth
     }
 
-    fn unit_with(drape_mm: f64, blur_px: f64, gamma: f64, jpeg_quality: Option<u8>) -> SensorUnit {
+    fn unit_with(blur_px: f64, gamma: f64, jpeg_quality: Option<u8>) -> SensorUnit {
         let mut unit = SensorUnit::nominal(Sensor::default());
-        unit.elastomer.drape_mm = drape_mm;
         unit.camera = Camera { blur_px, gamma, jpeg_quality, ..unit.camera };
         unit
     }
@@ -524,10 +602,12 @@ mod tests {
     #[test]
     fn the_first_image_model_is_the_rigid_sharp_linear_camera() {
         let unit = SensorUnit::from_seed(1, 25.0).with_first_image_model();
-        assert_eq!((unit.elastomer.drape_mm, unit.camera.blur_px, unit.camera.gamma), (0.0, 0.0, 1.0));
+        assert_eq!((unit.elastomer.rigid_membrane, unit.camera.blur_px, unit.camera.gamma), (true, 0.0, 1.0));
         assert_eq!(unit.camera.jpeg_quality, None);
         let r = Renderer::for_crop(&unit);
-        assert!(r.drape.is_none() && r.blur.is_none() && r.tone.is_none());
+        assert!(r.blur.is_none() && r.tone.is_none());
+        let depth = ramp(&r);
+        assert!(matches!(r.membrane(&depth, None), Cow::Borrowed(_)), "the first model's membrane is the indenter");
     }
 
     #[test]
@@ -582,36 +662,45 @@ mod tests {
         assert!(r.dirty_elastomer(&vec![0.0; w * h]).is_empty());
     }
 
-    /// The drape and the blur show beyond the contact's edge, as far as they reach and no farther;
-    /// with a tone curve and JPEG, no contact still gives the reference image exactly.
+    /// The solved membrane sags beyond the contact's edge, never lies above the indenter and
+    /// follows it where it presses; the sag and the blur show beyond the edge, the solved
+    /// surface's reach farther than a rigid membrane's; with a tone curve and JPEG, no contact
+    /// still gives the reference image exactly.
     #[test]
-    fn the_membrane_drapes_and_the_lens_blurs_only_near_the_contact() {
+    fn the_solved_membrane_sags_beyond_the_contact_and_the_lens_blurs() {
         let sharp = Renderer::for_crop(&SensorUnit::nominal(Sensor::default()).with_first_image_model());
-        for unit in [unit_with(0.5, 0.0, 1.0, None), unit_with(0.5, 0.8, 1.8, None)] {
+        for unit in [unit_with(0.0, 1.0, None), unit_with(0.8, 1.8, None)] {
             let r = Renderer::for_crop(&unit);
             let depth = ramp(&r);
-            let (_, rigid) = r.radiance(&vec![0.0; r.grid().len()]);
-            assert_eq!(rigid, 0);
+            let (_, untouched) = r.radiance(&vec![0.0; r.grid().len()]);
+            assert_eq!(untouched, 0);
+            let membrane = r.membrane(&depth, None);
+            assert!(membrane.iter().zip(&depth).all(|(m, d)| m >= d), "the indenter never pierces the membrane");
+            let n = r.grid().width as usize;
+            // Beside the ramp the surface has sunk; 10 pixels out, less than at its edge.
+            let (edge, out) = (membrane[210 * n + 331], membrane[210 * n + 340]);
+            assert!(edge > 0.1 && out > 0.01 && out < edge, "sag beside the edge {edge} mm, 10 px out {out} mm");
             let (changed, b) = changed_pixels(&r, &depth);
-            let drape = r.drape.unwrap();
-            // Steps until 0.8 mm has decayed below the floor, the blur's radius, the normals'.
-            let reach = (drape.decay_steps * (0.8f32 / optics::DRAPE_FLOOR_MM).ln()).ceil() as u32 + 2 + 1;
-            assert!(
-                b[0] + 3 < 300 && b[1] + 3 < 200 && b[2] > 332 && b[3] > 222,
-                "the drape must show beyond the edge: {b:?}"
-            );
-            assert!(
-                b[0] + reach >= 300 && b[1] + reach >= 200 && b[2] <= 329 + reach && b[3] <= 219 + reach,
-                "changed pixels in {b:?}, reach {reach}"
-            );
+            assert!(b[0] + 10 < 300 && b[1] + 10 < 200 && b[2] > 340 && b[3] > 230, "the sag must show: {b:?}");
             assert!(changed > changed_pixels(&sharp, &depth).0);
             // The truth is untouched: the same depth map rendered twice gives the same frame.
             assert_eq!(r.render(&depth, Some(3)), r.render(&depth, Some(3)));
         }
-        let r = Renderer::for_crop(&unit_with(0.5, 0.8, 1.8, Some(85)));
+        let r = Renderer::for_crop(&unit_with(0.8, 1.8, Some(85)));
         assert_eq!(r.render(&vec![0.0; r.grid().len()], None), r.reference_image(1));
         let (changed, _) = changed_pixels(&r, &ramp(&r));
         assert!(changed > 500);
+    }
+
+    /// A contact solved elsewhere (the generator's, for the pressure label) gives the image the
+    /// renderer's own solve gives.
+    #[test]
+    fn a_contact_solved_for_the_label_renders_as_the_renderers_own() {
+        let (_, r) = nominal();
+        let depth = ramp(&r);
+        let (contact, _) =
+            r.geometry.dome.solve(&depth, &r.unit().elastomer.material(), &GridConfig::default()).unwrap();
+        assert_eq!(r.capture_solved(&depth, Some(&contact), Some(5)), r.capture(&depth, Some(5)));
     }
 
     #[test]
