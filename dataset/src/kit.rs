@@ -84,6 +84,23 @@ impl Kit {
         Self::load_dir_scaled(dir, 1.0)
     }
 
+    /// The kit `name` names, as `--kit` takes it: `procedural` (the embedded kit, for a dome of
+    /// `radius_mm`) or a kit folder ([`Kit::open_dir`]); `what` names the argument in errors.
+    pub fn open(name: &str, scale_to_mm: f32, radius_mm: f32, what: &str) -> anyhow::Result<Kit> {
+        match name {
+            "procedural" => Ok(Kit::procedural(radius_mm)),
+            dir => Kit::open_dir(Path::new(dir), scale_to_mm, what),
+        }
+    }
+
+    /// The kit in `dir`, known by its absolute path (recorded in what is made from it, so that
+    /// a run resumes from any working folder); `what` names the argument in errors.
+    pub fn open_dir(dir: &Path, scale_to_mm: f32, what: &str) -> anyhow::Result<Kit> {
+        use anyhow::Context;
+        let dir = absolute_dir(dir, what)?;
+        Kit::load_dir_scaled(&dir, scale_to_mm).with_context(|| format!("loading the kit in {}", dir.display()))
+    }
+
     /// [`Kit::load_dir`] with the files' coordinates multiplied by `scale_to_mm` (25.4 for a kit
     /// exported in inches). Parts whose size fits no kit, or indicators whose dome does not
     /// point along the file's Y axis, are refused with the file and the fix.
@@ -249,6 +266,12 @@ fn read_index(path: &Path, split: Split) -> Result<Vec<IndexRow>, KitError> {
         return Err(KitError::Layout { path: path.into(), message: "the index lists no trials".into() });
     }
     Ok(rows)
+}
+
+/// `path` made absolute and free of `..` and links; `what` names it if it does not exist.
+pub fn absolute_dir(path: &Path, what: &str) -> anyhow::Result<PathBuf> {
+    use anyhow::Context;
+    std::fs::canonicalize(path).with_context(|| format!("{}: cannot open the folder of {what}", path.display()))
 }
 
 #[cfg(test)]

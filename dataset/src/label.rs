@@ -63,6 +63,45 @@ pub struct Labeller<'a> {
     pub force: Option<Material>,
 }
 
+/// A labelling as `dataset label` (or the Python package's `label_session`) asks for it, by
+/// names and numbers: opened and checked here, then run.
+pub struct LabelRequest {
+    /// The session folder (made absolute here).
+    pub session: PathBuf,
+    /// `procedural` or the kit's folder ([`Kit::open`]).
+    pub kit: String,
+    pub kit_scale: f32,
+    pub sensor: Sensor,
+    pub out: PathBuf,
+    pub on_bad_row: OnBadRow,
+    pub z: ZReading,
+    pub force: Option<Material>,
+    /// Whether errors name the command line's flags (`--kit`) or the arguments' plain names.
+    pub flags: bool,
+}
+
+impl LabelRequest {
+    pub fn run(&self) -> Result<LabelReport> {
+        let name = |flag: &str| if self.flags { format!("--{}", flag.replace('_', "-")) } else { flag.to_string() };
+        if let Some(material) = &self.force {
+            material
+                .validate()
+                .with_context(|| format!("{} / {}", name("youngs_modulus_mpa"), name("poisson_ratio")))?;
+        }
+        let kit = Kit::open(&self.kit, self.kit_scale, self.sensor.radius_mm as f32, &name("kit"))?;
+        Labeller {
+            session: crate::kit::absolute_dir(&self.session, &name("session"))?,
+            out: self.out.clone(),
+            sensor: &self.sensor,
+            kit: &kit,
+            on_bad_row: self.on_bad_row,
+            z: self.z,
+            force: self.force,
+        }
+        .run()
+    }
+}
+
 /// What a finished labelling reports.
 pub struct LabelReport {
     pub manifest: Manifest,

@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use dataset::calibration::{CalibrationOptions, GpTarget, calibrate, compare};
 use dataset::generate::{Generator, report_lines};
-use dataset::label::{Labeller, OnBadRow};
+use dataset::label::OnBadRow;
 use dataset::session::{RendererCamera, SessionWriter};
 use dataset::{Kit, Renderer, SawTooth, SawToothShot, SensorUnit, Skipping};
 use formats::dataset::{Angles, GeneratorParams};
@@ -237,7 +237,7 @@ fn generate(args: GenerateArgs) -> Result<()> {
     sensor.validate()?;
     let renderer = unit.as_ref().map(Renderer::for_crop);
     let kit = match &args.kit {
-        Some(dir) => load_kit(dir, args.kit_scale)?,
+        Some(dir) => Kit::open_dir(dir, args.kit_scale, "--kit")?,
         None => Kit::procedural(sensor.radius_mm as f32),
     };
     let b_axis_deg = match args.b_deg {
@@ -312,40 +312,22 @@ fn generate(args: GenerateArgs) -> Result<()> {
     Ok(())
 }
 
-/// The kit in `dir`, known by its absolute path (recorded in what is made from it, so that a
-/// run resumes from any working folder).
-fn load_kit(dir: &std::path::Path, scale: f32) -> Result<Kit> {
-    let dir = absolute(dir, "--kit")?;
-    Kit::load_dir_scaled(&dir, scale).with_context(|| format!("loading the kit in {}", dir.display()))
-}
-
-/// `path` made absolute and free of `..` and links; `flag` names it if it does not exist.
-fn absolute(path: &std::path::Path, flag: &str) -> Result<std::path::PathBuf> {
-    std::fs::canonicalize(path).with_context(|| format!("{}: cannot open the folder of {flag}", path.display()))
-}
-
 fn label(args: LabelArgs) -> Result<()> {
-    let sensor = Sensor::load_json(&args.sensor)?;
-    let kit = match args.kit.as_str() {
-        "procedural" => Kit::procedural(sensor.radius_mm as f32),
-        dir => load_kit(std::path::Path::new(dir), args.kit_scale)?,
-    };
-    let labeller = Labeller {
-        session: absolute(&args.session, "--session")?,
+    let request = dataset::label::LabelRequest {
+        session: args.session,
+        kit: args.kit,
+        kit_scale: args.kit_scale,
+        sensor: Sensor::load_json(&args.sensor)?,
         out: args.out.clone(),
-        sensor: &sensor,
-        kit: &kit,
         on_bad_row: args.on_bad_row,
         z: dataset::touch::ZReading { from: args.z_from, zero_mm: args.z_zero_mm },
         force: (!args.no_force_labels).then_some(dataset::mechanics::Material {
             youngs_modulus_mpa: args.youngs_modulus_mpa,
             poisson_ratio: args.poisson_ratio,
         }),
+        flags: true,
     };
-    if let Some(material) = &labeller.force {
-        material.validate().context("--youngs-modulus-mpa / --poisson-ratio")?;
-    }
-    let report = labeller.run()?;
+    let report = request.run()?;
     for line in dataset::label::report_lines(&report) {
         println!("{line}");
     }
@@ -381,18 +363,13 @@ fn run_calibration(args: CalibrateArgs) -> Result<()> {
     let img = sensor::frame::read(&args.image)?;
     sensor::frame::check_colour(&args.image, &img)?;
     let truth = args.truth.as_deref().map(Sensor::load_json).transpose()?;
-    if !(args.pitch_deg > 0.0 && args.pitch_deg * args.teeth as f64 <= 90.0) {
-        bail!("--pitch-deg x --teeth must stay within 90 degrees");
-    }
     let opts = CalibrationOptions {
         radius_mm: args.radius_mm,
         indicator: SawTooth { pitch_deg: args.pitch_deg, teeth: args.teeth, ..Default::default() },
         target: args.target,
         max_uncertainty_px: args.max_uncertainty_px,
     };
-    if args.max_uncertainty_px.is_nan() || args.max_uncertainty_px <= 0.0 {
-        bail!("--max-uncertainty-px must be a positive number of pixels");
-    }
+    opts.validate().context("--pitch-deg, --teeth, --radius-mm, --max-uncertainty-px")?;
     let cal = calibrate(&img, &opts).with_context(|| format!("{}", args.image.display()))?;
     write_json(&args.out, &cal.sensor)?;
     let c = &cal.sensor.correspondence;

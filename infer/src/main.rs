@@ -124,10 +124,10 @@ fn eval(bundle: PathBuf, data: PathBuf, split: String, out: PathBuf, no_tare: bo
 }
 
 fn predict(args: PredictArgs) -> Result<()> {
-    let PredictArgs { bundle, image, depth_out, colour_out, ply, pressure_out, always, no_tare } = args;
+    let PredictArgs { bundle, image, depth_out, depth_npy, colour_out, ply, pressure_out, always, no_tare } = args;
     // Outputs are checked before any work: none may be an input, none named twice.
     let outputs: Vec<&std::path::Path> =
-        [&depth_out, &colour_out, &ply, &pressure_out].into_iter().flatten().map(|p| p.as_path()).collect();
+        [&depth_out, &depth_npy, &colour_out, &ply, &pressure_out].into_iter().flatten().map(|p| p.as_path()).collect();
     let inputs = [image.as_path(), bundle.as_path()];
     for out in &outputs {
         formats::output::check_file(out, &inputs)?;
@@ -170,6 +170,9 @@ fn predict(args: PredictArgs) -> Result<()> {
     if let Some(path) = &depth_out {
         files.push((path, depth.to_png_um()));
     }
+    if let Some(path) = &depth_npy {
+        files.push((path, depth.to_npy()));
+    }
     if let Some(path) = &colour_out {
         let img = infer::colour::false_colour(&depth, &predictor.mask, predictor.file.sensor.max_depth_mm as f32);
         files.push((path, sensor::frame::encode_png_rgb(&img)));
@@ -202,6 +205,10 @@ struct PredictArgs {
     /// Depth map to write: 16-bit PNG, micrometres, on the sensor's crop.
     #[arg(long)]
     depth_out: Option<PathBuf>,
+    /// Depth map to write exactly: float32 millimetres on the sensor's crop, NumPy's `.npy`
+    /// (`numpy.load`).
+    #[arg(long)]
+    depth_npy: Option<PathBuf>,
     /// False-colour depth for people.
     #[arg(long)]
     colour_out: Option<PathBuf>,

@@ -248,14 +248,34 @@ impl Predictor {
     /// [`predict_all`](Self::predict_all) for a frame [`accept_frame`](Self::accept_frame) returned.
     pub(crate) fn predict_all_crop(&self, frame: &RgbImage) -> Prediction {
         if !self.has_contact(frame) {
-            let depth = DepthMap::zeros(self.file.sensor.crop_size_px);
-            let force = self.areas.as_ref().map(|_| Force {
-                pressure: PressureMap { size_px: depth.size_px, pressure_kpa: vec![0.0; depth.depth_mm.len()] },
-                wrench: Wrench::default(),
-            });
-            return Prediction { depth, force, network_ran: false };
+            return self.untouched();
         }
         self.all_on_crops(std::slice::from_ref(frame)).remove(0)
+    }
+
+    /// What a frame the contact gate answers gets: zero depth and, with the force output, zero
+    /// pressure and wrench.
+    fn untouched(&self) -> Prediction {
+        let depth = DepthMap::zeros(self.file.sensor.crop_size_px);
+        let force = self.areas.as_ref().map(|_| Force {
+            pressure: PressureMap { size_px: depth.size_px, pressure_kpa: vec![0.0; depth.depth_mm.len()] },
+            wrench: Wrench::default(),
+        });
+        Prediction { depth, force, network_ran: false }
+    }
+
+    /// [`predict_all`](Self::predict_all) for several frames: each behind the contact gate, the
+    /// frames with contact through the network as one batch. Each answer equals the frame's own
+    /// [`predict_all`](Self::predict_all).
+    pub fn predict_batch(&self, frames: &[RgbImage]) -> Result<Vec<Prediction>, InferError> {
+        frames.iter().try_for_each(|f| self.check(f))?;
+        let touched: Vec<bool> = frames.iter().map(|f| self.has_contact(f)).collect();
+        let batch: Vec<RgbImage> = frames.iter().zip(&touched).filter(|(_, t)| **t).map(|(f, _)| f.clone()).collect();
+        let mut ran = self.all_on_crops(&batch).into_iter();
+        Ok(touched
+            .iter()
+            .map(|&t| if t { ran.next().expect("one answer per frame with contact") } else { self.untouched() })
+            .collect())
     }
 
     /// [`predict_all`](Self::predict_all) for a batch of frames, without the contact gate.

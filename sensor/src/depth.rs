@@ -43,6 +43,13 @@ impl DepthMap {
         encode_png(self.size_px, px)
     }
 
+    /// Float32 depth (mm) as NumPy's `.npy` file, shape (size, size): exact, and one
+    /// `numpy.load` away for Python users.
+    pub fn to_npy(&self) -> Vec<u8> {
+        let n = self.size_px as usize;
+        npy_f32(&[n, n], &self.depth_mm)
+    }
+
     /// The paper's 8-bit encoding: 0..255 spans 0..`max_depth_mm` (about 0.037 mm a step).
     pub fn to_png_u8(&self, max_depth_mm: f32) -> Vec<u8> {
         let px: Vec<u8> =
@@ -62,6 +69,25 @@ impl DepthMap {
         let depth_mm = raw.into_iter().map(|v| v as f32 * PNG_UM_PER_STEP / 1000.0).collect();
         Ok(DepthMap { size_px, depth_mm })
     }
+}
+
+/// `values` as a little-endian float32 NumPy array file (format 1.0) of `shape`, row-major.
+pub fn npy_f32(shape: &[usize], values: &[f32]) -> Vec<u8> {
+    assert_eq!(shape.iter().product::<usize>(), values.len(), "npy shape and data disagree");
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let shape = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}");
+    // The magic, version and length take 10 bytes; the header ends in a newline and pads the
+    // whole preamble to a multiple of 64 bytes, as NumPy writes it.
+    let used = 10 + header.len() + 1;
+    header.extend(std::iter::repeat_n(' ', used.next_multiple_of(64) - used));
+    header.push('\n');
+    let mut out = Vec::with_capacity(10 + header.len() + 4 * values.len());
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    values.iter().for_each(|v| out.extend_from_slice(&v.to_le_bytes()));
+    out
 }
 
 /// Contact pressure (kPa) on the crop's pixel grid, row-major: what the elastomer's contact
@@ -131,6 +157,24 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn npy_files_have_numpys_preamble_and_the_values_row_major() {
+        let d = DepthMap { size_px: 3, depth_mm: (0..9).map(|k| k as f32 * 0.25 - 1.0).collect() };
+        let bytes = d.to_npy();
+        assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00");
+        let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+        let data = 10 + header_len;
+        assert_eq!(data % 64, 0, "NumPy aligns the data to 64 bytes");
+        let header = std::str::from_utf8(&bytes[10..data]).unwrap();
+        assert!(header.starts_with("{'descr': '<f4', 'fortran_order': False, 'shape': (3, 3), }"), "{header}");
+        assert!(header.ends_with('\n'));
+        let values: Vec<f32> =
+            bytes[data..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        assert_eq!(values, d.depth_mm);
+        let one = npy_f32(&[2], &[1.0, 2.0]);
+        assert!(std::str::from_utf8(&one[10..64]).unwrap().contains("'shape': (2,)"));
+    }
 
     #[test]
     fn png_round_trip_within_half_a_micrometre() {

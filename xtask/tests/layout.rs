@@ -50,7 +50,7 @@ fn the_layout_names_every_module_and_only_modules_that_exist() {
     let root = root();
     let layout = std::fs::read_to_string(root.join("docs/layout.md")).unwrap();
     let entries = entries(&layout);
-    let members = ["sensor", "formats", "dataset", "gelcam", "model", "train", "infer", "xtask"];
+    let members = ["sensor", "formats", "dataset", "gelcam", "model", "train", "infer", "xtask", "python"];
     let mut missing = Vec::new();
     let mut phantom = Vec::new();
     for krate in members {

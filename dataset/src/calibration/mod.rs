@@ -73,6 +73,30 @@ impl Default for CalibrationOptions {
     }
 }
 
+impl CalibrationOptions {
+    /// Refuses options no frame could satisfy: teeth past the dome's rim, a non-positive radius
+    /// or uncertainty.
+    pub fn validate(&self) -> Result<(), CalibrationError> {
+        let SawTooth { pitch_deg, teeth, .. } = self.indicator;
+        if !(pitch_deg > 0.0 && pitch_deg * teeth as f64 <= 90.0) {
+            return fail(format!(
+                "the indicator's {teeth} teeth {pitch_deg} degrees apart reach past the rim: pitch x teeth must \
+                 stay within 90 degrees"
+            ));
+        }
+        if !(self.radius_mm > 0.0 && self.radius_mm.is_finite()) {
+            return fail(format!("the dome's radius must be a positive number of mm, got {}", self.radius_mm));
+        }
+        if !(self.max_uncertainty_px > 0.0) {
+            return fail(format!(
+                "the largest uncertainty allowed must be a positive number of pixels, got {}",
+                self.max_uncertainty_px
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// One tooth edge matched to its angle.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MatchedEdge {

@@ -1,0 +1,38 @@
+"""Fixtures made by tests/pytest.rs (run through `cargo test`): DENSETACT_TEST_DIR holds a bundle,
+a simulated capture session, a dataset and `infer predict`'s answers for some frames."""
+
+import csv
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def root() -> Path:
+    path = os.environ.get("DENSETACT_TEST_DIR")
+    if not path:
+        pytest.fail("run these through `cargo test -p densetact-python -- --include-ignored`, which makes the fixtures")
+    return Path(path)
+
+
+@pytest.fixture(scope="session")
+def bundle(root):
+    return root / "bundle"
+
+
+@pytest.fixture(scope="session")
+def session(root):
+    return root / "session"
+
+
+@pytest.fixture(scope="session")
+def cases(root):
+    return json.loads((root / "cases.json").read_text())
+
+
+@pytest.fixture(scope="session")
+def rows(session):
+    with open(session / "captures.csv", newline="") as f:
+        return list(csv.DictReader(f))
