@@ -17,7 +17,14 @@ fn target_dir() -> PathBuf {
 
 /// The package as pip would install it: the Python sources beside the extension this build made.
 fn install_package(target: &Path, site: &Path) {
-    let ext = ["lib_densetact.so", "lib_densetact.dylib"].iter().map(|n| target.join(n)).find(|p| p.is_file());
+    // `cargo test` leaves the extension among the dependencies (`deps/`), a build of the crate
+    // itself beside them; the newer is this build's.
+    let names = ["lib_densetact.so", "lib_densetact.dylib"];
+    let found = [target.to_path_buf(), target.join("deps")].into_iter().flat_map(|d| names.map(|n| d.join(n)));
+    let ext = found
+        .filter_map(|p| Some((std::fs::metadata(&p).ok()?.modified().ok()?, p)))
+        .max_by_key(|(modified, _)| *modified)
+        .map(|(_, p)| p);
     let ext = ext.unwrap_or_else(|| {
         panic!("no extension module in {}: build the workspace (cargo test --workspace)", target.display())
     });
