@@ -91,6 +91,7 @@ fn bench(bundle: PathBuf, image: Option<PathBuf>, device: String, repeats: usize
     println!("ms per frame over {} frames, median [quartiles]:", t.repeats);
     println!("  network only                      {}", t.network_ms.median_and_quartiles());
     println!("  end to end (decode, depth, cloud) {}", t.end_to_end_ms.median_and_quartiles());
+    println!("  as `predict` (checks, mask too)   {}", t.as_predict_ms.median_and_quartiles());
     match reference {
         Some(_) => println!("  frame without contact (gated)     {}", t.gated_no_contact_ms.median_and_quartiles()),
         None => println!("  frame without contact             no reference image in the bundle: no gate"),

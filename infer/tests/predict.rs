@@ -183,7 +183,7 @@ fn bench_reports_each_stage_with_its_quartiles() {
         .unwrap();
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let out = String::from_utf8_lossy(&r.stdout);
-    for stage in ["network only", "end to end", "frame without contact"] {
+    for stage in ["network only", "end to end", "as `predict`", "frame without contact"] {
         let line = out.lines().find(|l| l.trim_start().starts_with(stage)).unwrap_or_else(|| panic!("{stage}: {out}"));
         let numbers: Vec<f64> = line
             .split(|c: char| !(c.is_ascii_digit() || c == '.'))
