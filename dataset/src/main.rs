@@ -379,9 +379,7 @@ fn run_calibration(args: CalibrateArgs) -> Result<()> {
     );
     println!("{} tooth edges matched; residual rms {:.3} px", cal.edges.len(), cal.fit_rms_px);
     if !cal.missing.is_empty() {
-        let names: Vec<String> =
-            cal.missing.iter().map(|(s, k)| format!("{}{k}", if *s < 0 { "-" } else { "+" })).collect();
-        println!("teeth without an edge: {}", names.join(" "));
+        println!("teeth without an edge: {}", cal.missing_teeth().join(" "));
     }
     println!(
         "predictive sd of theta over the useful disk: mean {:.4} deg, max {:.4} deg",

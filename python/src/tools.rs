@@ -51,13 +51,11 @@ pub(crate) fn calibrate(
         };
         sensor::frame::check_colour(&name, &image)?;
         let cal = calibrate_frame(&image, &opts).map_err(|e| anyhow::anyhow!("{}: {e}", name.display()))?;
-        let missing: Vec<String> =
-            cal.missing.iter().map(|(s, k)| format!("{}{k}", if *s < 0 { "-" } else { "+" })).collect();
         let figures = serde_json::json!({
             "rim_radius_px": cal.rim_radius_px,
             "rim_rms_px": cal.rim_rms_px,
             "edges": cal.edges.len(),
-            "missing_teeth": missing,
+            "missing_teeth": cal.missing_teeth(),
             "fit_rms_px": cal.fit_rms_px,
             "mean_sd_deg": cal.mean_sd_deg,
             "max_sd_deg": cal.max_sd_deg,

@@ -73,6 +73,14 @@ impl Default for CalibrationOptions {
     }
 }
 
+impl Calibration {
+    /// The teeth without an edge as people and `--hide-teeth` name them: `+3` the third from
+    /// the apex on the +x side, `-3` on the -x side.
+    pub fn missing_teeth(&self) -> Vec<String> {
+        self.missing.iter().map(|(s, k)| format!("{}{k}", if *s < 0 { "-" } else { "+" })).collect()
+    }
+}
+
 impl CalibrationOptions {
     /// Refuses options no frame could satisfy: teeth past the dome's rim, a non-positive radius
     /// or uncertainty.
