@@ -97,10 +97,7 @@ impl Predictor {
     /// Loads `dir` (a bundle) onto `device`; BatchNorms are folded into their convolutions.
     pub fn load(dir: &Path, device: &Device) -> Result<Self, InferError> {
         let (net, file) = load_bundle(dir, device)?;
-        let reference = match &file.reference_image {
-            Some(name) => Some(sensor::frame::read_reference(&dir.join(name), file.sensor.crop_size_px)?),
-            None => None,
-        };
+        let reference = model::bundle::load_reference(dir, &file)?;
         let bad = |message: String| InferError::File { path: dir.join(model::bundle::BUNDLE_JSON), message };
         let encoding = file.encoding().map_err(bad)?;
         let encoder = InputEncoder::new(encoding, [file.input_height_px, file.input_width_px], reference.as_ref())

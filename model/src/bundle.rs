@@ -353,6 +353,15 @@ pub fn sign_bundle(dir: &Path, device: &Device) -> Result<(), BundleError> {
     Ok(())
 }
 
+/// The bundle's reference frame (its unit untouched, the crop's size), where it has one: what
+/// the predictor reads every frame against.
+pub fn load_reference(dir: &Path, file: &BundleFile) -> Result<Option<image::RgbImage>, sensor::frame::FrameError> {
+    match &file.reference_image {
+        Some(name) => Ok(Some(sensor::frame::read_reference(&dir.join(name), file.sensor.crop_size_px)?)),
+        None => Ok(None),
+    }
+}
+
 /// Loads a bundle's network (weights from the burnpack file) on `device`; the bundle is checked
 /// whole first ([`BundleFile::read`]).
 pub fn load_bundle(dir: &Path, device: &Device) -> Result<(DenseDepth, BundleFile), BundleError> {

@@ -135,6 +135,35 @@ pub fn resized(img: &RgbImage, [h, w]: [usize; 2]) -> RgbImage {
     image::imageops::resize(img, w as u32, h as u32, image::imageops::FilterType::Triangle)
 }
 
+/// The taps of [`resized`] along one axis, from `n_in` to `n_out` pixels: per output pixel, its
+/// first input pixel and the weights, computed as the `image` crate computes them (f32, triangle
+/// kernel widened by the ratio when shrinking, normalised), so that a graph replaying the resize
+/// (the ONNX export's) weighs the pixels alike. `resized` runs the vertical taps first, in f32
+/// without rounding, then the horizontal ones, then rounds to the nearest grey level.
+pub fn resize_taps(n_in: usize, n_out: usize) -> Vec<(usize, Vec<f32>)> {
+    let ratio = n_in as f32 / n_out as f32;
+    let sratio = ratio.max(1.0);
+    // The triangle filter's support is one pixel, widened by the ratio.
+    let support = sratio;
+    (0..n_out)
+        .map(|out| {
+            let centre = (out as f32 + 0.5) * ratio;
+            let left = ((centre - support).floor() as i64).clamp(0, n_in as i64 - 1);
+            let right = ((centre + support).ceil() as i64).clamp(left + 1, n_in as i64);
+            let centre = centre - 0.5;
+            let mut weights: Vec<f32> = (left..right)
+                .map(|i| {
+                    let x = ((i as f32 - centre) / sratio).abs();
+                    if x < 1.0 { 1.0 - x } else { 0.0 }
+                })
+                .collect();
+            let sum: f32 = weights.iter().fold(0.0, |a, &w| a + w);
+            weights.iter_mut().for_each(|w| *w /= sum);
+            (left as usize, weights)
+        })
+        .collect()
+}
+
 /// A crop's R, G, B planes resized to `[h, w]` ([`resized`]), channel-major, values / 255.
 pub fn rgb_planes(img: &RgbImage, [h, w]: [usize; 2]) -> Vec<f32> {
     let small = resized(img, [h, w]);
@@ -194,6 +223,12 @@ impl InputEncoder {
         self.hw
     }
 
+    /// The reference frame's R, G, B planes at the input size (values / 255), where the
+    /// channels use them.
+    pub fn reference_planes(&self) -> Option<&[f32]> {
+        self.reference.as_deref()
+    }
+
     /// The network's input for `img`, channel-major.
     pub fn encode(&self, img: &RgbImage) -> Vec<f32> {
         self.encode_with(img, |_| {})
@@ -241,6 +276,51 @@ mod tests {
 
     fn uniform(rgb: [u8; 3]) -> RgbImage {
         RgbImage::from_pixel(40, 40, image::Rgb(rgb))
+    }
+
+    /// [`resize_taps`] replayed as the `image` crate runs them (vertical, then horizontal, f32
+    /// sums in tap order, clamped and rounded) gives `image`'s resize bit for bit, shrinking and
+    /// growing, so the taps are its taps.
+    #[test]
+    fn resize_taps_are_the_image_crates() {
+        let mut state = 0x2545_f491_u32;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            (state >> 24) as u8
+        };
+        for ([h0, w0], [h, w]) in [([570, 570], [64, 64]), ([97, 131], [128, 40]), ([33, 20], [33, 57])] {
+            let img = RgbImage::from_fn(w0, h0, |_, _| image::Rgb([next(), next(), next()]));
+            let want = resized(&img, [h as usize, w as usize]);
+            let (ty, tx) = (resize_taps(h0 as usize, h as usize), resize_taps(w0 as usize, w as usize));
+            for c in 0..3 {
+                let mut mid = vec![0f32; h as usize * w0 as usize];
+                for (y, (lo, ws)) in ty.iter().enumerate() {
+                    for x in 0..w0 as usize {
+                        let mut t = 0f32;
+                        for (k, wk) in ws.iter().enumerate() {
+                            t += img.get_pixel(x as u32, (lo + k) as u32).0[c] as f32 * wk;
+                        }
+                        mid[y * w0 as usize + x] = t;
+                    }
+                }
+                for y in 0..h as usize {
+                    for (x, (lo, ws)) in tx.iter().enumerate() {
+                        let mut t = 0f32;
+                        for (k, wk) in ws.iter().enumerate() {
+                            t += mid[y * w0 as usize + lo + k] * wk;
+                        }
+                        let got = t.clamp(0.0, 255.0).round() as u8;
+                        assert_eq!(
+                            got,
+                            want.get_pixel(x as u32, y as u32).0[c],
+                            "{h0}x{w0} to {h}x{w}, ({x}, {y}) {c}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]

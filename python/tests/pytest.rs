@@ -1,7 +1,8 @@
 //! The Python package's tests (`python/tests/test_*.py`), run by pytest against the extension
 //! module this build made, on fixtures made here with the workspace's crates: a bundle, a
 //! simulated capture session, a dataset, and `infer predict`'s own files for some frames, which
-//! the Python predictor must equal bit for bit.
+//! the Python predictor must equal bit for bit, and the whole predictor's ONNX file, which ONNX
+//! Runtime must run to within 1e-3 mm of them (where `onnxruntime` is installed).
 
 #[path = "../../infer/tests/common/mod.rs"]
 mod common;
@@ -71,6 +72,12 @@ fn the_python_package_passes_its_tests() {
     install_package(&target, &root.join("site"));
 
     let renderer = common::bundle(&root.join("bundle"));
+    // The whole predictor as ONNX, as `train onnx` writes it, for ONNX Runtime.
+    let device = model::backend::default_device();
+    let (net, file) = model::bundle::load_bundle(&root.join("bundle"), &device).unwrap();
+    let reference = model::bundle::load_reference(&root.join("bundle"), &file).unwrap();
+    let whole = model::onnx::WholePredictor { net: &net, file: &file, reference: reference.as_ref() };
+    std::fs::write(root.join("predictor.onnx"), model::onnx::export_whole(&whole).unwrap()).unwrap();
     let unit = renderer.unit().clone();
     session(&unit, &root.join("session"), 8);
     common::dataset_of(&renderer, &root.join("data"), 6, 0.34);

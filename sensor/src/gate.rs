@@ -65,11 +65,38 @@ pub struct Balance {
 }
 
 /// Ratios the balance resolves, and the range it fits in (a frame beyond it is not drift).
-const BALANCE_BINS: usize = 1200;
-const BALANCE_MIN: f32 = 0.5;
-const BALANCE_MAX: f32 = 2.0;
+/// Public, with the rest of the fit's rule, for the ONNX export that replays it in a graph.
+pub const BALANCE_BINS: usize = 1200;
+pub const BALANCE_MIN: f32 = 0.5;
+pub const BALANCE_MAX: f32 = 2.0;
 /// Reference values darker than this give ratios that noise dominates; they are not used.
-const BALANCE_MIN_LEVEL: u8 = 24;
+pub const BALANCE_MIN_LEVEL: u8 = 24;
+/// A channel with fewer samples than this keeps gain 1.
+pub const BALANCE_MIN_SAMPLES: u32 = 64;
+/// The trimmed median keeps the bins within `TRIM_SIGMAS` robust standard deviations
+/// (`MAD_TO_SIGMA` median absolute deviations) of the median, and at least `TRIM_MIN_BINS`.
+pub const TRIM_SIGMAS: f64 = 3.0;
+pub const MAD_TO_SIGMA: f64 = 1.4826;
+pub const TRIM_MIN_BINS: usize = 2;
+/// Gains this close to 1 are no drift (see [`Balance::is_none`]).
+pub const NO_DRIFT: f32 = 0.005;
+
+/// The width of one balance bin (a ratio).
+pub fn balance_step() -> f32 {
+    (BALANCE_MAX - BALANCE_MIN) / BALANCE_BINS as f32
+}
+
+/// The balance histogram's bin of a pixel whose frame value is `level` and reference value
+/// `reference_level` (their ratio, binned).
+pub fn balance_bin(level: u8, reference_level: u8) -> usize {
+    let ratio = level as f32 / reference_level as f32;
+    (((ratio - BALANCE_MIN) / balance_step()) as isize).clamp(0, BALANCE_BINS as isize - 1) as usize
+}
+
+/// The gain (frame over reference) a bin stands for: its centre.
+pub fn balance_gain(bin: usize) -> f32 {
+    BALANCE_MIN + (bin as f32 + 0.5) * balance_step()
+}
 
 /// The median bin of a histogram, then again among the bins within three robust standard
 /// deviations (1.4826 median absolute deviations) of it: a contact's pixels, all changed one way,
@@ -92,7 +119,7 @@ fn trimmed_median_bin(counts: &[u32]) -> usize {
         mad += 1;
         seen += m.checked_sub(mad).map_or(0, |k| counts[k] as u64) + counts.get(m + mad).map_or(0, |&c| c as u64);
     }
-    let reach = ((3.0 * 1.4826 * mad as f64).ceil() as usize).max(2);
+    let reach = ((TRIM_SIGMAS * MAD_TO_SIGMA * mad as f64).ceil() as usize).max(TRIM_MIN_BINS);
     median_in(m.saturating_sub(reach), (m + reach).min(last)).unwrap_or(m)
 }
 
@@ -105,34 +132,34 @@ impl Balance {
     pub fn fit(frame: &RgbImage, reference: &RgbImage, mask: &[bool]) -> Balance {
         let mut hist = vec![[0u32; 3]; BALANCE_BINS];
         let mut counted = [0u32; 3];
-        let step = (BALANCE_MAX - BALANCE_MIN) / BALANCE_BINS as f32;
-        for ((p, q), &useful) in frame.pixels().zip(reference.pixels()).zip(mask).step_by(2) {
-            if !useful {
-                continue;
-            }
+        for (i, ((p, q), &useful)) in frame.pixels().zip(reference.pixels()).zip(mask).enumerate().step_by(2) {
             for c in 0..3 {
-                if q.0[c] >= BALANCE_MIN_LEVEL {
-                    let ratio = p.0[c] as f32 / q.0[c] as f32;
-                    let bin = (((ratio - BALANCE_MIN) / step) as isize).clamp(0, BALANCE_BINS as isize - 1);
-                    hist[bin as usize][c] += 1;
+                if Balance::samples(i, useful, q.0[c]) {
+                    hist[balance_bin(p.0[c], q.0[c])][c] += 1;
                     counted[c] += 1;
                 }
             }
         }
         let mut gain = [1.0f32; 3];
         for c in 0..3 {
-            if counted[c] >= 64 {
+            if counted[c] >= BALANCE_MIN_SAMPLES {
                 let counts: Vec<u32> = hist.iter().map(|bins| bins[c]).collect();
-                gain[c] = BALANCE_MIN + (trimmed_median_bin(&counts) as f32 + 0.5) * step;
+                gain[c] = balance_gain(trimmed_median_bin(&counts));
             }
         }
         Balance { gain }
     }
 
+    /// Whether the fit reads pixel `index` (row-major crop) in a channel whose reference value
+    /// is `reference_level`: every second pixel, useful, with a bright enough reference.
+    pub fn samples(index: usize, useful: bool, reference_level: u8) -> bool {
+        index.is_multiple_of(2) && useful && reference_level >= BALANCE_MIN_LEVEL
+    }
+
     /// Whether this is no drift worth undoing (every gain within 0.5 % of 1: a grey level at
     /// 200; what a contact or noise moves a fit by on an undrifted frame).
     pub fn is_none(&self) -> bool {
-        self.gain.iter().all(|g| (g - 1.0).abs() < 0.005)
+        self.gain.iter().all(|g| (g - 1.0).abs() < NO_DRIFT)
     }
 
     /// `frame` with the drift undone (each channel divided by its gain): the frame as the

@@ -5,8 +5,9 @@
 //! convention) and the filter widens when shrinking, so it averages the pixels it replaces.
 
 /// Weights of a 1-D triangle resampling from `n_src` to `n_dst` samples: per output sample, the
-/// first input index and its weights (summing to one).
-fn weights(n_src: usize, n_dst: usize) -> Vec<(usize, Vec<f32>)> {
+/// first input index and its weights (summing to one). Public for the ONNX export, which
+/// writes the same resampling as matrices.
+pub fn triangle_weights(n_src: usize, n_dst: usize) -> Vec<(usize, Vec<f32>)> {
     let scale = n_src as f64 / n_dst as f64;
     let radius = scale.max(1.0);
     (0..n_dst)
@@ -32,7 +33,7 @@ fn weights(n_src: usize, n_dst: usize) -> Vec<(usize, Vec<f32>)> {
 /// Resizes a row-major `[height, width]` plane to `[new_height, new_width]`.
 pub fn resize_plane(values: &[f32], [height, width]: [usize; 2], [new_height, new_width]: [usize; 2]) -> Vec<f32> {
     assert_eq!(values.len(), height * width, "plane size");
-    let (wx, wy) = (weights(width, new_width), weights(height, new_height));
+    let (wx, wy) = (triangle_weights(width, new_width), triangle_weights(height, new_height));
     let mut rows = vec![0f32; height * new_width];
     for y in 0..height {
         let src = &values[y * width..(y + 1) * width];
@@ -69,6 +70,8 @@ pub struct FillPlan {
     len: usize,
     /// In ring order: a pixel and the neighbours known before its ring.
     steps: Vec<(usize, Vec<usize>)>,
+    /// Where each ring ends in `steps`.
+    ring_ends: Vec<usize>,
 }
 
 impl FillPlan {
@@ -76,6 +79,7 @@ impl FillPlan {
         assert_eq!(mask.len(), height * width, "mask size");
         let mut known = mask.to_vec();
         let mut steps = Vec::new();
+        let mut ring_ends = Vec::new();
         loop {
             let ring_start = steps.len();
             for y in 0..height {
@@ -100,11 +104,12 @@ impl FillPlan {
             if steps.len() == ring_start {
                 break;
             }
+            ring_ends.push(steps.len());
             for (i, _) in &steps[ring_start..] {
                 known[*i] = true;
             }
         }
-        FillPlan { len: mask.len(), steps }
+        FillPlan { len: mask.len(), steps, ring_ends }
     }
 
     /// The number of pixels of the planes it fills.
@@ -114,6 +119,13 @@ impl FillPlan {
 
     pub fn is_empty(&self) -> bool {
         self.len == 0
+    }
+
+    /// The rings in order, each as (pixel, neighbours averaged) steps: a ring reads only pixels
+    /// known before it, so its steps may run together (the ONNX export gathers a ring at once).
+    pub fn rings(&self) -> impl Iterator<Item = &[(usize, Vec<usize>)]> {
+        let starts = std::iter::once(0).chain(self.ring_ends.iter().copied());
+        starts.zip(&self.ring_ends).map(|(a, &b)| &self.steps[a..b])
     }
 
     pub fn apply(&self, values: &mut [f32]) {
@@ -148,6 +160,19 @@ mod tests {
         let mut v = vec![9.0, -1.0, 3.0];
         FillPlan::new(&[true, false, true], [1, 3]).apply(&mut v);
         assert_eq!(v, vec![9.0, 6.0, 3.0]);
+        // The rings partition the steps, and each reads only pixels known before it.
+        let mask: Vec<bool> = (0..49).map(|i| i == 24 || i == 10).collect();
+        let plan = FillPlan::new(&mask, [7, 7]);
+        let mut known = mask.clone();
+        let mut steps = 0;
+        for ring in plan.rings() {
+            assert!(!ring.is_empty());
+            assert!(ring.iter().all(|(_, from)| from.iter().all(|&j| known[j])), "a ring reads its own ring");
+            ring.iter().for_each(|(i, _)| known[*i] = true);
+            steps += ring.len();
+        }
+        assert_eq!(steps, 47);
+        assert!(known.iter().all(|&k| k));
         // Nothing known: nothing changes.
         let mut v = vec![1.0, 2.0];
         FillPlan::new(&[false, false], [1, 2]).apply(&mut v);

@@ -150,12 +150,23 @@ fn warn_differences(model: &model::DenseDepthConfig) {
     }
 }
 
-/// Writes `bundle`'s network as ONNX to `out` (never over one of the bundle's files); returns
-/// its size in bytes.
-pub fn export_onnx(bundle: &Path, out: &Path, device: &burn::tensor::Device) -> Result<usize> {
+/// Writes `bundle` as ONNX to `out` (never over one of the bundle's files): the whole predictor
+/// (`whole`: crop in, depth in mm out, with the bundle's reference frame, gate and tare) or the
+/// network alone; returns its size in bytes.
+pub fn export_onnx(bundle: &Path, out: &Path, device: &burn::tensor::Device, whole: bool) -> Result<usize> {
     formats::output::check_file(out, &[bundle])?;
     let (net, file) = model::bundle::load_bundle(bundle, device)?;
-    let bytes = model::onnx::export(&net, &file).with_context(|| format!("{}", bundle.display()))?;
+    let bytes = if whole {
+        let reference = model::bundle::load_reference(bundle, &file)?;
+        model::onnx::export_whole(&model::onnx::WholePredictor {
+            net: &net,
+            file: &file,
+            reference: reference.as_ref(),
+        })
+    } else {
+        model::onnx::export(&net, &file)
+    };
+    let bytes = bytes.with_context(|| format!("{}", bundle.display()))?;
     formats::fs::write_atomic(out, &bytes)?;
     Ok(bytes.len())
 }

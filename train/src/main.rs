@@ -44,8 +44,10 @@ enum Command {
         #[arg(long)]
         bundle: PathBuf,
     },
-    /// A bundle's network as an ONNX model (opset 17, weights embedded, batch, height and
-    /// width free; input encoding, depth scale, model and sensor in its metadata).
+    /// A bundle as an ONNX model (opset 17, weights embedded): by default the whole predictor
+    /// (the crop as uint8 RGB in, depth in mm on the crop out, as `infer predict` gives it);
+    /// with `--network-only`, the network alone (batch, height and width free). The metadata
+    /// holds the input encoding, depth scale, model, sensor and crop rule.
     Onnx {
         /// The bundle folder to read.
         #[arg(long)]
@@ -53,6 +55,9 @@ enum Command {
         /// The .onnx file to write.
         #[arg(long)]
         out: PathBuf,
+        /// The network alone: its input encoding and depth scale left to the caller.
+        #[arg(long)]
+        network_only: bool,
     },
     /// Make a bundle from a PyTorch DenseDepth state_dict: a `torch.save` file or safetensors
     /// (`safetensors.torch.save_file`, or a bundle's weights.safetensors with PyTorch's names).
@@ -467,8 +472,11 @@ fn main() -> ExitCode {
         Command::Sign { bundle } => model::bundle::sign_bundle(&bundle, &model::backend::default_device())
             .map_err(anyhow::Error::from)
             .map(|()| println!("signed {}: every file it names has its SHA-256 in bundle.json", bundle.display())),
-        Command::Onnx { bundle, out } => train::export::export_onnx(&bundle, &out, &model::backend::default_device())
-            .map(|bytes| println!("wrote {} ({:.1} MB)", out.display(), bytes as f64 / 1e6)),
+        Command::Onnx { bundle, out, network_only } => {
+            let device = model::backend::default_device();
+            train::export::export_onnx(&bundle, &out, &device, !network_only)
+                .map(|bytes| println!("wrote {} ({:.1} MB)", out.display(), bytes as f64 / 1e6))
+        }
         Command::Import { pth, sensor, input, out, torch_names } => {
             train::export::import_pth(&pth, &sensor, input, &out, &model::backend::default_device(), keys(torch_names))
                 .with_context(|| format!("importing {}", pth.display()))

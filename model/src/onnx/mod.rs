@@ -11,6 +11,9 @@
 //! turned into millimetres by the metadata's `depth_scale`.
 
 mod proto;
+mod whole;
+
+pub use whole::{CONTACT, DEPTH_MM, FORCE_N, FRAME, PRESSURE_KPA, WholePredictor, export_whole};
 
 use burn::nn::conv::Conv2d;
 use burn::nn::{BatchNorm, PaddingConfig2d};
@@ -67,6 +70,14 @@ pub fn export(net: &DenseDepth, file: &BundleFile) -> Result<Vec<u8>, OnnxError>
         input: vec![value(INPUT, vec![free("batch"), fixed(channels), free("height"), free("width")])],
         output,
     };
+    let doc = "DenseDepth for a DenseTact sensor: camera crop in, depth in network units out";
+    Ok(model_bytes(graph, doc, metadata(file, pressure.is_some(), false)))
+}
+
+/// The metadata both exports carry: how the bundle reads frames and scales depth, its sensor;
+/// for the whole predictor, also the crop rule, so that a full camera frame is cut as `infer`
+/// cuts it.
+fn metadata(file: &BundleFile, pressure: bool, whole: bool) -> Vec<(&'static str, String)> {
     let mut metadata = vec![
         ("densetact.input_encoding", file.input_encoding.clone()),
         ("densetact.depth_scale", json(&file.depth_scale)),
@@ -74,22 +85,38 @@ pub fn export(net: &DenseDepth, file: &BundleFile) -> Result<Vec<u8>, OnnxError>
         ("densetact.input_hw", format!("{}x{}", file.input_height_px, file.input_width_px)),
         ("densetact.sensor", json(&file.sensor)),
     ];
-    if pressure.is_some() {
+    if pressure {
         metadata.push(("densetact.pressure_kpa_per_unit", crate::PRESSURE_KPA_PER_UNIT.to_string()));
     }
+    if whole {
+        let s = &file.sensor;
+        let (x0, y0) = s.crop_origin_px();
+        let crop = serde_json::json!({
+            "size_px": s.crop_size_px,
+            "origin_px": [x0, y0],
+            "frame_px": [s.frame_width_px, s.frame_height_px],
+            "rule": "x0 = round(centre_u_px - size_px / 2 + 0.5), y0 = round(centre_v_px - size_px / 2 + 0.5) \
+                     (the sensor's calibrated optical centre); the crop is frame[y0 : y0 + size_px, x0 : x0 + size_px]",
+        });
+        metadata.push(("densetact.crop", crop.to_string()));
+    }
+    metadata
+}
+
+fn model_bytes(graph: GraphProto, doc: &str, metadata: Vec<(&str, String)>) -> Vec<u8> {
     let model = ModelProto {
         ir_version: IR_VERSION,
         opset_import: vec![OperatorSetIdProto { domain: String::new(), version: OPSET }],
         producer_name: "densetact-rs".into(),
         producer_version: env!("CARGO_PKG_VERSION").into(),
-        doc_string: "DenseDepth for a DenseTact sensor: camera crop in, depth in network units out".into(),
+        doc_string: doc.into(),
         graph: Some(graph),
         metadata_props: metadata
             .into_iter()
             .map(|(key, value)| StringStringEntryProto { key: key.into(), value })
             .collect(),
     };
-    Ok(model.encode_to_vec())
+    model.encode_to_vec()
 }
 
 /// A bundle description's part as JSON, for the metadata.

@@ -8,12 +8,15 @@ pub const IR_VERSION: i64 = 8;
 
 /// `TensorProto.DataType`.
 pub const FLOAT: i32 = 1;
+pub const UINT8: i32 = 2;
 pub const INT64: i32 = 7;
+pub const BOOL: i32 = 9;
 
 /// `AttributeProto.AttributeType`.
 pub const ATTR_FLOAT: i32 = 1;
 pub const ATTR_INT: i32 = 2;
 pub const ATTR_STRING: i32 = 3;
+pub const ATTR_GRAPH: i32 = 5;
 pub const ATTR_INTS: i32 = 7;
 
 #[derive(Clone, PartialEq, Message)]
@@ -90,6 +93,9 @@ pub struct AttributeProto {
     pub i: i64,
     #[prost(bytes = "vec", tag = "4")]
     pub s: Vec<u8>,
+    /// A subgraph (`If`'s branches).
+    #[prost(message, optional, tag = "6")]
+    pub g: Option<GraphProto>,
     #[prost(int64, repeated, tag = "8")]
     pub ints: Vec<i64>,
 }

@@ -1,0 +1,586 @@
+//! The whole predictor as one ONNX graph: the camera's crop (uint8 RGB) in, depth in mm on the
+//! crop out, as `infer`'s `Predictor` computes it, so that ONNX Runtime, TensorRT or OpenCV's DNN
+//! module need nothing else from the bundle.
+//!
+//! The graph replays, in order: the drift balance against the reference frame (the trimmed
+//! median of frame / reference ratios per channel, `sensor::gate::Balance`, binned by table into
+//! histograms (`ScatterElements` adding) whose running counts (`CumSum`) give the medians), the contact gate (an `If`: an untouched frame gives zeros without running
+//! the network), the resize to the network's input (the `image` crate's triangle taps summed in
+//! its order, rounded to grey levels), the input encoding with the reference as a constant, the
+//! network, the depth scale,
+//! the tare (the network's depth on the reference, a constant), the extrapolation over the
+//! untrained border (`FillPlan`'s rings as gathers), the upsampling to the crop (two matrix
+//! products), the clamp and the useful-disk mask; with the pressure output, the pressure (kPa)
+//! kept where the depth shows contact, and its resultant force.
+
+use burn::tensor::{Tensor, TensorData};
+use image::RgbImage;
+
+use super::proto::*;
+use super::{Graph, OnnxError, attr_int, attr_ints, attr_string};
+use crate::InputEncoder;
+use crate::bundle::BundleFile;
+use crate::input::resize_taps;
+use crate::network::DenseDepth;
+
+/// The graph's input: the crop, `[crop, crop, 3]` uint8, R, G, B.
+pub const FRAME: &str = "frame";
+/// Depth (mm) on the crop, `[crop, crop]` float32.
+pub const DEPTH_MM: &str = "depth_mm";
+/// Whether the contact gate let the network run (bool scalar).
+pub const CONTACT: &str = "contact";
+/// With the pressure output: pressure (kPa) on the crop, and its resultant force (N, sensor
+/// frame, `[3]`).
+pub const PRESSURE_KPA: &str = "pressure_kpa";
+pub const FORCE_N: &str = "force_n";
+
+/// What the graph is made of: a bundle's network (folded, as `infer` runs it) and description,
+/// and its unit's reference frame where the bundle has one (the balance, the gate, the
+/// difference channels and the tare all read it).
+pub struct WholePredictor<'a> {
+    pub net: &'a DenseDepth,
+    pub file: &'a BundleFile,
+    pub reference: Option<&'a RgbImage>,
+}
+
+/// Values the balance and the gate share: the frame's planes and the fitted gains.
+struct Planes {
+    /// `[3, crop, crop]` float grey levels.
+    planes: String,
+    /// `[3, 1, 1]` gains, where there is a reference.
+    gains: Option<String>,
+}
+
+/// The ONNX model of the whole predictor; see the module's description.
+pub fn export_whole(p: &WholePredictor) -> Result<Vec<u8>, OnnxError> {
+    let file = p.file;
+    let s = file.sensor.crop_size_px as usize;
+    let mask = file.sensor.valid_mask();
+    let encoding = file.encoding().map_err(|why| OnnxError::Unsupported { what: "input_encoding".into(), why })?;
+    let hw = [file.input_height_px, file.input_width_px];
+    let encoder = InputEncoder::new(encoding, hw, p.reference)
+        .map_err(|e| OnnxError::Unsupported { what: "the input".into(), why: e.to_string() })?;
+    if let Some(r) = p.reference
+        && r.dimensions() != (s as u32, s as u32)
+    {
+        let why = format!("the reference frame is {}x{}, the crop {s}x{s}", r.width(), r.height());
+        return Err(OnnxError::Unsupported { what: "the reference".into(), why });
+    }
+    let net = p.net.clone().folded();
+    let mut g = Graph::default();
+    let frame = g.node("Cast", "whole.frame_f32", &[FRAME], vec![attr_int("to", FLOAT as i64)]);
+    let perm = attr_ints("perm", &[2, 0, 1]);
+    let planes = g.node("Transpose", "whole.planes", &[&frame], vec![perm]);
+    let planes = match p.reference {
+        Some(reference) => g.balance(planes, reference, &mask),
+        None => Planes { planes, gains: None },
+    };
+    let gate = match (p.reference, &file.contact_gate) {
+        (Some(reference), Some(record)) => Some(g.gate(&planes, reference, &mask, record.gate)),
+        _ => None,
+    };
+    let tare = p.reference.map(|r| tare(&net, file, &encoder, r));
+
+    // The network's branch: everything from the encoding on.
+    // Its constants go in the branch's own graph (tract names a subgraph's outer-scope inputs
+    // after them, which collides with the names its translations give).
+    let outer = std::mem::take(&mut g.nodes);
+    let outer_constants = g.initializers.len();
+    let input = g.encode(&planes.planes, &encoder, s);
+    let (depth, pressure) = g.densedepth(&net, &input)?;
+    let out_hw = file.model.output_hw(hw);
+    let trained = sensor::resample::covered_mask(&mask, s, out_hw);
+    let fill = sensor::resample::FillPlan::new(&trained, out_hw);
+    let scale = file.depth_scale;
+    let mm = {
+        let d = g.reshape("whole.depth.plane", &depth, &[out_hw[0] as i64, out_hw[1] as i64]);
+        let [min, max, range] = [
+            g.scalar("whole.scale.net_min", scale.net_min),
+            g.scalar("whole.scale.max_mm", scale.max_depth_mm),
+            g.scalar("whole.scale.range", scale.range()),
+        ];
+        let d = g.node("Sub", "whole.depth.shift", &[&d, &min], vec![]);
+        let d = g.node("Mul", "whole.depth.times_max", &[&d, &max], vec![]);
+        g.node("Div", "whole.depth.mm", &[&d, &range], vec![])
+    };
+    let depth = g.on_crop("whole.depth", &mm, tare.as_ref().map(|t| t.0.as_slice()), &fill, out_hw, s);
+    let depth = {
+        let max = file.sensor.max_depth_mm as f32;
+        let zero = g.scalar("whole.zero", 0.0);
+        let top = g.scalar("whole.max_depth", max);
+        let clamped = g.node("Clip", "whole.depth.clamped", &[&depth, &zero, &top], vec![]);
+        let mask = g.bools("whole.mask", &[s as i64, s as i64], &mask);
+        g.node("Where", "whole.depth.masked", &[&mask, &clamped, &zero], vec![])
+    };
+    let mut outputs = vec![(depth, DEPTH_MM, vec![s as i64, s as i64])];
+    if let Some(pressure) = pressure {
+        let [oh, ow] = out_hw.map(|v| v as i64);
+        let p = g.reshape("whole.pressure.plane", &pressure, &[oh, ow]);
+        let per = crate::PRESSURE_KPA_PER_UNIT;
+        let per = g.scalar("whole.pressure.per_unit", per);
+        let kpa = g.node("Mul", "whole.pressure.kpa", &[&p, &per], vec![]);
+        let tare_kpa = tare.as_ref().and_then(|t| t.1.as_deref());
+        let kpa = g.on_crop("whole.pressure", &kpa, tare_kpa, &fill, out_hw, s);
+        let (pressure, force) = g.force(&outputs[0].0, &kpa, file, s);
+        outputs.push((pressure, PRESSURE_KPA, vec![s as i64, s as i64]));
+        outputs.push((force, FORCE_N, vec![3]));
+    }
+    let branch = std::mem::replace(&mut g.nodes, outer);
+    let branch_constants = g.initializers.split_off(outer_constants);
+
+    let mut graph_outputs = Vec::new();
+    match gate {
+        Some(contact) => {
+            // The else branch: zeros of each output's shape.
+            let then_out: Vec<ValueInfoProto> = outputs.iter().map(|(v, _, d)| float_info(v, d)).collect();
+            let mut else_nodes = Vec::new();
+            let mut else_out = Vec::new();
+            for (_, name, dims) in &outputs {
+                let len = dims.iter().product::<i64>() as usize;
+                let zeros = g.floats(&format!("whole.untouched.{name}"), dims, &vec![0.0; len]);
+                let out = format!("whole.untouched.{name}.out");
+                else_nodes.push(NodeProto {
+                    input: vec![zeros],
+                    output: vec![out.clone()],
+                    name: out.clone(),
+                    op_type: "Identity".into(),
+                    attribute: vec![],
+                });
+                else_out.push(float_info(&out, dims));
+            }
+            let then_branch = GraphProto {
+                node: branch,
+                name: "network".into(),
+                initializer: branch_constants,
+                output: then_out,
+                ..Default::default()
+            };
+            let else_branch =
+                GraphProto { node: else_nodes, name: "untouched".into(), output: else_out, ..Default::default() };
+            g.nodes.push(NodeProto {
+                input: vec![contact.clone()],
+                output: outputs.iter().map(|(_, name, _)| name.to_string()).collect(),
+                name: "whole.gate".into(),
+                op_type: "If".into(),
+                attribute: vec![graph_attr("then_branch", then_branch), graph_attr("else_branch", else_branch)],
+            });
+            g.node("Identity", CONTACT, &[&contact], vec![]);
+        }
+        None => {
+            g.nodes.extend(branch);
+            g.initializers.extend(branch_constants);
+            for (value, name, _) in &outputs {
+                g.node("Identity", name, &[value], vec![]);
+            }
+            let yes = g.bools("whole.always", &[], &[true]);
+            g.node("Identity", CONTACT, &[&yes], vec![]);
+        }
+    }
+    for (_, name, dims) in &outputs {
+        graph_outputs.push(float_info(name, dims));
+    }
+    graph_outputs.push(typed_info(CONTACT, BOOL, &[]));
+    let graph = GraphProto {
+        node: g.nodes,
+        name: "densetact_predictor".into(),
+        initializer: g.initializers,
+        input: vec![typed_info(FRAME, UINT8, &[s as i64, s as i64, 3])],
+        output: graph_outputs,
+    };
+    let doc = "DenseTact predictor: the sensor's crop (uint8 RGB) in, depth in mm on the crop out";
+    Ok(super::model_bytes(graph, doc, super::metadata(file, net.decoder.pressure.is_some(), true)))
+}
+
+/// The network's depth (mm) and pressure (kPa) on the reference frame, output grid: what
+/// `infer` subtracts from every prediction.
+fn tare(
+    net: &DenseDepth,
+    file: &BundleFile,
+    encoder: &InputEncoder,
+    reference: &RgbImage,
+) -> (Vec<f32>, Option<Vec<f32>>) {
+    let device = net.encoder.conv0.weight.val().device();
+    let [h, w] = encoder.hw();
+    let c = encoder.channels().count();
+    let x = Tensor::<4>::from_data(TensorData::new(encoder.encode(reference), [1, c, h, w]), &device);
+    let heads = net.forward_heads(x);
+    let values = |t: Tensor<4>| t.into_data().convert::<f32>().try_into_vec::<f32>().expect("f32 output");
+    let mm = values(heads.depth).into_iter().map(|v| file.depth_scale.to_mm(v)).collect();
+    let kpa = heads.pressure.map(|p| values(p).into_iter().map(|v| v * crate::PRESSURE_KPA_PER_UNIT).collect());
+    (mm, kpa)
+}
+
+fn typed_info(name: &str, elem_type: i32, dims: &[i64]) -> ValueInfoProto {
+    let dim = dims.iter().map(|&d| Dimension { value: Some(DimensionValue::DimValue(d)) }).collect();
+    ValueInfoProto {
+        name: name.into(),
+        r#type: Some(TypeProto {
+            tensor_type: Some(TensorTypeProto { elem_type, shape: Some(TensorShapeProto { dim }) }),
+        }),
+    }
+}
+
+fn float_info(name: &str, dims: &[i64]) -> ValueInfoProto {
+    typed_info(name, FLOAT, dims)
+}
+
+fn graph_attr(name: &str, g: GraphProto) -> AttributeProto {
+    AttributeProto { name: name.into(), r#type: ATTR_GRAPH, g: Some(g), ..Default::default() }
+}
+
+impl Graph {
+    /// A constant, written once: a second call with the same name (which names its content)
+    /// reuses the first.
+    fn tensor(&mut self, name: &str, dims: &[i64], data_type: i32, raw_data: Vec<u8>) -> String {
+        if self.initializers.iter().any(|t| t.name == name) {
+            return name.into();
+        }
+        self.initializers.push(TensorProto { dims: dims.to_vec(), data_type, name: name.into(), raw_data });
+        name.into()
+    }
+
+    fn floats(&mut self, name: &str, dims: &[i64], values: &[f32]) -> String {
+        self.tensor(name, dims, FLOAT, values.iter().flat_map(|v| v.to_le_bytes()).collect())
+    }
+
+    fn ints(&mut self, name: &str, dims: &[i64], values: &[i64]) -> String {
+        self.tensor(name, dims, INT64, values.iter().flat_map(|v| v.to_le_bytes()).collect())
+    }
+
+    fn bools(&mut self, name: &str, dims: &[i64], values: &[bool]) -> String {
+        self.tensor(name, dims, BOOL, values.iter().map(|&b| u8::from(b)).collect())
+    }
+
+    fn scalar(&mut self, name: &str, v: f32) -> String {
+        self.floats(name, &[], &[v])
+    }
+
+    fn int(&mut self, name: &str, v: i64) -> String {
+        self.ints(name, &[], &[v])
+    }
+
+    fn reshape(&mut self, name: &str, x: &str, dims: &[i64]) -> String {
+        let shape = self.ints(&format!("{name}.shape"), &[dims.len() as i64], dims);
+        self.node("Reshape", name, &[x, &shape], vec![])
+    }
+
+    fn cast(&mut self, name: &str, x: &str, to: i32) -> String {
+        self.node("Cast", name, &[x], vec![attr_int("to", to as i64)])
+    }
+
+    /// How many of the `n` bin indices `bins` (int64 in [0, BALANCE_BINS)) fall in each bin:
+    /// float counts (exact to 2^24).
+    fn histogram(&mut self, name: &str, bins: &str, n: usize) -> String {
+        let bins_len = sensor::gate::BALANCE_BINS;
+        let zeros = self.floats("whole.balance.empty_histogram", &[bins_len as i64], &vec![0.0; bins_len]);
+        let one = self.scalar("whole.one", 1.0);
+        let shape = self.ints(&format!("{name}.n"), &[1], &[n as i64]);
+        let ones = self.node("Expand", &format!("{name}.ones"), &[&one, &shape], vec![]);
+        let attrs = vec![attr_int("axis", 0), attr_string("reduction", "add")];
+        self.node("ScatterElements", name, &[&zeros, bins, &ones], attrs)
+    }
+
+    /// The first bin (int64 scalar) whose running count of `counts`, less `before` (the count
+    /// before a window), reaches half of `total` (`2 x seen >= total`, as the fit's median):
+    /// the number of bins that fall short.
+    fn first_reaching_half(&mut self, name: &str, counts: &str, before: Option<&str>, total: &str) -> String {
+        let axis = self.int("whole.int.0", 0);
+        let mut seen = self.node("CumSum", &format!("{name}.seen"), &[counts, &axis], vec![]);
+        if let Some(before) = before {
+            seen = self.node("Sub", &format!("{name}.seen_in_window"), &[&seen, before], vec![]);
+        }
+        let twice = self.node("Add", &format!("{name}.twice"), &[&seen, &seen], vec![]);
+        let short = self.node("Less", &format!("{name}.short"), &[&twice, total], vec![]);
+        let short = self.cast(&format!("{name}.short_f"), &short, FLOAT);
+        let k = self.node("ReduceSum", &format!("{name}.k"), &[&short], vec![attr_int("keepdims", 0)]);
+        self.cast(name, &k, INT64)
+    }
+
+    /// x rounded to the nearest integer, halves up (Rust's `round` on the non-negative values
+    /// it is used on; ONNX's `Round` takes halves to even).
+    fn round_half_up(&mut self, name: &str, x: &str) -> String {
+        let floor = self.node("Floor", &format!("{name}.floor"), &[x], vec![]);
+        let frac = self.node("Sub", &format!("{name}.frac"), &[x, &floor], vec![]);
+        let half = self.scalar("whole.half", 0.5);
+        let up = self.node("GreaterOrEqual", &format!("{name}.up"), &[&frac, &half], vec![]);
+        let up = self.cast(&format!("{name}.up_f32"), &up, FLOAT);
+        self.node("Add", name, &[&floor, &up], vec![])
+    }
+
+    /// The frame's drift against `reference` taken out, as `Balance::fit` then `undo` do; the
+    /// gains are kept for the gate.
+    fn balance(&mut self, planes: String, reference: &RgbImage, mask: &[bool]) -> Planes {
+        use sensor::gate::*;
+        let n_px = mask.len();
+        let flat = self.reshape("whole.balance.flat", &planes, &[3 * n_px as i64]);
+        // Ratios binned and bins turned into gains by tables the fit's own functions fill, so
+        // that no runtime's division (tract multiplies by a reciprocal) moves a bin.
+        let table: Vec<i64> = (0..=255u8)
+            .flat_map(|q| (0..=255u8).map(move |p| if q == 0 { 0 } else { balance_bin(p, q) as i64 }))
+            .collect();
+        let bin_table = self.ints("whole.balance.bin_table", &[table.len() as i64], &table);
+        let gain_table: Vec<f32> = (0..BALANCE_BINS).map(balance_gain).collect();
+        let gain_table = self.floats("whole.balance.gain_table", &[BALANCE_BINS as i64], &gain_table);
+        let inverse_table: Vec<f32> = (0..BALANCE_BINS).map(|b| 1.0 / balance_gain(b)).collect();
+        let inverse_table = self.floats("whole.balance.inverse_table", &[BALANCE_BINS as i64], &inverse_table);
+        let zero = self.scalar("whole.zero", 0.0);
+        let (mut gains, mut inverses) = (Vec::new(), Vec::new());
+        for c in 0..3 {
+            let name = format!("whole.balance.{c}");
+            let (idx, q): (Vec<i64>, Vec<u8>) = reference
+                .pixels()
+                .enumerate()
+                .filter(|(i, p)| Balance::samples(*i, mask[*i], p.0[c]))
+                .map(|(i, p)| ((c * n_px + i) as i64, p.0[c]))
+                .unzip();
+            let n = idx.len();
+            if (n as u32) < BALANCE_MIN_SAMPLES {
+                gains.push(self.floats("whole.one1", &[1], &[1.0]));
+                inverses.push(self.floats("whole.one1", &[1], &[1.0]));
+                continue;
+            }
+            let idx = self.ints(&format!("{name}.idx"), &[n as i64], &idx);
+            // Each sample's row of the table: its reference value times 256.
+            let rows: Vec<i64> = q.iter().map(|&q| q as i64 * 256).collect();
+            let rows = self.ints(&format!("{name}.table_rows"), &[n as i64], &rows);
+            let p = self.node("Gather", &format!("{name}.frame"), &[&flat, &idx], vec![]);
+            let p = self.cast(&format!("{name}.frame_i"), &p, INT64);
+            let at = self.node("Add", &format!("{name}.table_at"), &[&p, &rows], vec![]);
+            let bins = self.node("Gather", &format!("{name}.bins"), &[&bin_table, &at], vec![]);
+            // The fit's histogram, and its median: the first bin whose running count reaches half.
+            let total = self.scalar(&format!("{name}.total"), n as f32);
+            let counts = self.histogram(&format!("{name}.counts"), &bins, n);
+            let m = self.first_reaching_half(&format!("{name}.median"), &counts, None, &total);
+            // The median absolute deviation: the same over the deviations' histogram.
+            let dev = self.node("Sub", &format!("{name}.dev"), &[&bins, &m], vec![]);
+            let dev = self.node("Abs", &format!("{name}.absdev"), &[&dev], vec![]);
+            let dev_counts = self.histogram(&format!("{name}.dev_counts"), &dev, n);
+            let mad = self.first_reaching_half(&format!("{name}.mad"), &dev_counts, None, &total);
+            // reach = max(ceil(sigmas x mad x mad_to_sigma), min): in integers, as the f64 product
+            // of an integer and 4.4478 is never within rounding of a whole number.
+            let times = (TRIM_SIGMAS * MAD_TO_SIGMA * 10_000.0).round() as i64;
+            let [times, ten_k, up, min_reach] = [
+                self.int("whole.balance.trim_x10000", times),
+                self.int("whole.int.10000", 10_000),
+                self.int("whole.int.9999", 9_999),
+                self.int("whole.balance.min_reach", TRIM_MIN_BINS as i64),
+            ];
+            let r = self.node("Mul", &format!("{name}.reach_x10000"), &[&mad, &times], vec![]);
+            let r = self.node("Add", &format!("{name}.reach_up"), &[&r, &up], vec![]);
+            let r = self.node("Div", &format!("{name}.reach_ceil"), &[&r, &ten_k], vec![]);
+            let reach = self.node("Max", &format!("{name}.reach"), &[&r, &min_reach], vec![]);
+            let [zero_i, last_i] =
+                [self.int("whole.int.0", 0), self.int("whole.balance.last_bin_i", BALANCE_BINS as i64 - 1)];
+            let lo = self.node("Sub", &format!("{name}.lo_raw"), &[&m, &reach], vec![]);
+            let lo = self.node("Max", &format!("{name}.lo_i"), &[&lo, &zero_i], vec![]);
+            let hi = self.node("Add", &format!("{name}.hi_raw"), &[&m, &reach], vec![]);
+            let hi = self.node("Min", &format!("{name}.hi_i"), &[&hi, &last_i], vec![]);
+            let below = self.node("Less", &format!("{name}.below"), &[&bins, &lo], vec![]);
+            let below = self.cast(&format!("{name}.below_f"), &below, FLOAT);
+            let below = self.node("ReduceSum", &format!("{name}.n_below"), &[&below], vec![attr_int("keepdims", 0)]);
+            let above_lo = self.node("GreaterOrEqual", &format!("{name}.from_lo"), &[&bins, &lo], vec![]);
+            let under_hi = self.node("LessOrEqual", &format!("{name}.to_hi"), &[&bins, &hi], vec![]);
+            let inside = self.node("And", &format!("{name}.inside"), &[&above_lo, &under_hi], vec![]);
+            let inside = self.cast(&format!("{name}.inside_f"), &inside, FLOAT);
+            let inside = self.node("ReduceSum", &format!("{name}.n_inside"), &[&inside], vec![attr_int("keepdims", 0)]);
+            // The window's median: its first bin whose count (from the window's start) reaches
+            // half the window's.
+            let trimmed = self.first_reaching_half(&format!("{name}.trimmed"), &counts, Some(&below), &inside);
+            let gain = self.node("Gather", &format!("{name}.gain_scalar"), &[&gain_table, &trimmed], vec![]);
+            let inverse = self.node("Gather", &format!("{name}.inverse_scalar"), &[&inverse_table, &trimmed], vec![]);
+            inverses.push(self.reshape(&format!("{name}.inverse"), &inverse, &[1]));
+            gains.push(self.reshape(&format!("{name}.gain"), &gain, &[1]));
+        }
+        let refs: Vec<&str> = gains.iter().map(|s| s.as_str()).collect();
+        let gains = self.node("Concat", "whole.balance.gains3", &refs, vec![attr_int("axis", 0)]);
+        let gains = self.reshape("whole.balance.gains", &gains, &[3, 1, 1]);
+        // No drift worth undoing: every gain within NO_DRIFT of 1.
+        let one = self.scalar("whole.one", 1.0);
+        let off = self.node("Sub", "whole.balance.off", &[&gains, &one], vec![]);
+        let off = self.node("Abs", "whole.balance.abs_off", &[&off], vec![]);
+        let off = self.node("ReduceMax", "whole.balance.max_off", &[&off], vec![attr_int("keepdims", 0)]);
+        let tol = self.scalar("whole.balance.no_drift", NO_DRIFT);
+        let none = self.node("Less", "whole.balance.none", &[&off, &tol], vec![]);
+        let refs: Vec<&str> = inverses.iter().map(|s| s.as_str()).collect();
+        let inverse = self.node("Concat", "whole.balance.inverses3", &refs, vec![attr_int("axis", 0)]);
+        let inverse = self.reshape("whole.balance.inverse", &inverse, &[3, 1, 1]);
+        let undone = self.node("Mul", "whole.balance.scaled", &[&planes, &inverse], vec![]);
+        let undone = self.round_half_up("whole.balance.rounded", &undone);
+        let top = self.scalar("whole.level.max", 255.0);
+        let undone = self.node("Clip", "whole.balance.undone", &[&undone, &zero, &top], vec![]);
+        let planes = self.node("Where", "whole.balance.planes", &[&none, &planes, &undone], vec![]);
+        Planes { planes, gains: Some(gains) }
+    }
+
+    /// Whether the frame differs from the reference by more than the unit's noise (the contact
+    /// gate, `ContactGate::differs`): a bool scalar.
+    fn gate(&mut self, p: &Planes, reference: &RgbImage, mask: &[bool], gate: sensor::gate::ContactGate) -> String {
+        let n = reference.width() as i64;
+        let q: Vec<f32> = (0..3).flat_map(|c| reference.pixels().map(move |p| p.0[c] as f32)).collect();
+        let q = self.floats("whole.gate.reference", &[3, n, n], &q);
+        let gains = p.gains.as_ref().expect("a gate has a reference, so gains");
+        let gq = self.node("Mul", "whole.gate.expected", &[gains, &q], vec![]);
+        let d = self.node("Sub", "whole.gate.diff", &[&p.planes, &gq], vec![]);
+        let d = self.node("Abs", "whole.gate.absdiff", &[&d], vec![]);
+        let axis = self.ints("whole.axes.0", &[1], &[0]);
+        let mut channels = Vec::new();
+        for c in 0..3i64 {
+            let a = self.ints(&format!("whole.int.[{c}]"), &[1], &[c]);
+            let b = self.ints(&format!("whole.int.[{}]", c + 1), &[1], &[c + 1]);
+            channels.push(self.node("Slice", &format!("whole.gate.channel{c}"), &[&d, &a, &b, &axis], vec![]));
+        }
+        // Summed as the gate sums: red, then green, then blue.
+        let sum = self.node("Add", "whole.gate.rg", &[&channels[0], &channels[1]], vec![]);
+        let sum = self.node("Add", "whole.gate.rgb", &[&sum, &channels[2]], vec![]);
+        let limit = gate.grey_levels * 3.0;
+        let limit = self.scalar("whole.gate.limit", limit);
+        let over = self.node("Greater", "whole.gate.over", &[&sum, &limit], vec![]);
+        let useful = self.bools("whole.gate.mask", &[1, n, n], mask);
+        let changed = self.node("And", "whole.gate.changed", &[&over, &useful], vec![]);
+        let changed = self.cast("whole.gate.changed_i", &changed, INT64);
+        let count = self.node("ReduceSum", "whole.gate.count", &[&changed], vec![attr_int("keepdims", 0)]);
+        let min = self.int("whole.gate.min_pixels", gate.min_pixels as i64);
+        self.node("GreaterOrEqual", "whole.gate.contact", &[&count, &min], vec![])
+    }
+
+    /// `x` (`[3, h, w]`) resampled along `axis` by `taps` as the `image` crate sums them: tap by
+    /// tap, each a product added in order, so that the sums (and their rounding to grey levels)
+    /// are its sums bit for bit; a matrix product would reorder them and flip a rounding now and
+    /// then. Outputs with fewer taps than the most are padded with zero weights.
+    fn taps(&mut self, name: &str, x: &str, axis: usize, taps: &[(usize, Vec<f32>)]) -> String {
+        let longest = taps.iter().map(|(_, w)| w.len()).max().unwrap_or(0);
+        let n = taps.len() as i64;
+        let dims: Vec<i64> = if axis == 1 { vec![n, 1] } else { vec![n] };
+        let mut sum: Option<String> = None;
+        for k in 0..longest {
+            let idx: Vec<i64> = taps.iter().map(|(lo, w)| (lo + k.min(w.len() - 1)) as i64).collect();
+            let weights: Vec<f32> = taps.iter().map(|(_, w)| w.get(k).copied().unwrap_or(0.0)).collect();
+            let idx = self.ints(&format!("{name}.{k}.from"), &[n], &idx);
+            let weights = self.floats(&format!("{name}.{k}.weights"), &dims, &weights);
+            let got =
+                self.node("Gather", &format!("{name}.{k}.pixels"), &[x, &idx], vec![attr_int("axis", axis as i64)]);
+            let product = self.node("Mul", &format!("{name}.{k}.weighted"), &[&got, &weights], vec![]);
+            sum = Some(match sum {
+                None => product,
+                Some(s) => self.node("Add", &format!("{name}.{k}.sum"), &[&s, &product], vec![]),
+            });
+        }
+        sum.expect("at least one tap")
+    }
+
+    /// The network's input `[1, C, h, w]` from the balanced planes: resized (the `image`
+    /// crate's taps, vertical then horizontal, rounded), / 255, and the reference difference.
+    fn encode(&mut self, planes: &str, encoder: &InputEncoder, s: usize) -> String {
+        let [h, w] = encoder.hw();
+        let mut x = planes.to_string();
+        if [h, w] != [s, s] {
+            x = self.taps("whole.resize.vertical", &x, 1, &resize_taps(s, h));
+            x = self.taps("whole.resize.horizontal", &x, 2, &resize_taps(s, w));
+            let (zero, top) = (self.scalar("whole.zero", 0.0), self.scalar("whole.level.max", 255.0));
+            x = self.node("Clip", "whole.resize.clamped", &[&x, &zero, &top], vec![]);
+            x = self.round_half_up("whole.resize.levels", &x);
+        }
+        // Grey levels / 255 by a table, as exact as the division (no runtime's reciprocal).
+        let table: Vec<f32> = (0..=255u8).map(|v| v as f32 / 255.0).collect();
+        let table = self.floats("whole.input.level_table", &[256], &table);
+        let x = self.cast("whole.input.levels", &x, INT64);
+        let rgb = self.node("Gather", "whole.input.rgb", &[&table, &x], vec![]);
+        let mut input = rgb.clone();
+        if let Some(reference) = encoder.reference_planes() {
+            let r = self.floats("whole.input.reference", &[3, h as i64, w as i64], reference);
+            let gain = encoder.encoding().difference_gain;
+            let gain = self.scalar("whole.input.difference_gain", gain);
+            let d = self.node("Sub", "whole.input.change", &[&rgb, &r], vec![]);
+            let d = self.node("Mul", "whole.input.difference", &[&gain, &d], vec![]);
+            input = self.node("Concat", "whole.input.channels", &[&rgb, &d], vec![attr_int("axis", 0)]);
+        }
+        let c = encoder.channels().count() as i64;
+        self.reshape("whole.input", &input, &[1, c, h as i64, w as i64])
+    }
+
+    /// One output plane (`[oh, ow]`) on the crop: `tare` subtracted, the untrained border filled
+    /// ring by ring, resized to `[s, s]`: `Predictor::on_crop`.
+    fn on_crop(
+        &mut self,
+        name: &str,
+        plane: &str,
+        tare: Option<&[f32]>,
+        fill: &sensor::resample::FillPlan,
+        [oh, ow]: [usize; 2],
+        s: usize,
+    ) -> String {
+        let mut x = plane.to_string();
+        if let Some(tare) = tare {
+            let t = self.floats(&format!("{name}.tare"), &[oh as i64, ow as i64], tare);
+            x = self.node("Sub", &format!("{name}.tared"), &[&x, &t], vec![]);
+        }
+        let n = (oh * ow) as i64;
+        x = self.reshape(&format!("{name}.flat"), &x, &[n]);
+        let zero = self.floats("whole.zero1", &[1], &[0.0]);
+        for (k, ring) in fill.rings().enumerate() {
+            let r = format!("{name}.fill{k}");
+            let width = ring.iter().map(|(_, from)| from.len()).max().unwrap_or(1);
+            // Each pixel's known neighbours, padded with the appended zero (index n).
+            let mut idx = vec![n; ring.len() * width];
+            for (row, (_, from)) in ring.iter().enumerate() {
+                for (j, &f) in from.iter().enumerate() {
+                    idx[row * width + j] = f as i64;
+                }
+            }
+            let counts: Vec<f32> = ring.iter().map(|(_, from)| from.len() as f32).collect();
+            let targets: Vec<i64> = ring.iter().map(|(i, _)| *i as i64).collect();
+            let rows = ring.len() as i64;
+            let idx = self.ints(&format!("{r}.from"), &[rows, width as i64], &idx);
+            let counts = self.floats(&format!("{r}.counts"), &[rows], &counts);
+            let targets = self.ints(&format!("{r}.targets"), &[rows, 1], &targets);
+            let ext = self.node("Concat", &format!("{r}.padded"), &[&x, &zero], vec![attr_int("axis", 0)]);
+            let got = self.node("Gather", &format!("{r}.neighbours"), &[&ext, &idx], vec![]);
+            let axes = self.ints("whole.axes.1", &[1], &[1]);
+            let sum = self.node("ReduceSum", &format!("{r}.sum"), &[&got, &axes], vec![attr_int("keepdims", 0)]);
+            let mean = self.node("Div", &format!("{r}.mean"), &[&sum, &counts], vec![]);
+            x = self.node("ScatterND", &format!("{r}.filled"), &[&x, &targets, &mean], vec![]);
+        }
+        x = self.reshape(&format!("{name}.filled"), &x, &[oh as i64, ow as i64]);
+        let dense = |n_in: usize, n_out: usize| {
+            let mut m = vec![0f32; n_out * n_in];
+            for (o, (lo, ws)) in sensor::resample::triangle_weights(n_in, n_out).iter().enumerate() {
+                m[o * n_in + lo..o * n_in + lo + ws.len()].copy_from_slice(ws);
+            }
+            m
+        };
+        // Rows first, as `resize_plane` resizes them.
+        let across =
+            self.floats(&format!("{name}.up_across"), &[ow as i64, s as i64], &transpose(&dense(ow, s), s, ow));
+        let down = self.floats(&format!("{name}.up_down"), &[s as i64, oh as i64], &dense(oh, s));
+        let rows = self.node("MatMul", &format!("{name}.up_rows"), &[&x, &across], vec![]);
+        self.node("MatMul", &format!("{name}.on_crop"), &[&down, &rows], vec![])
+    }
+
+    /// Pressure kept where the depth shows contact (never negative), and its resultant force.
+    fn force(&mut self, depth: &str, kpa: &str, file: &BundleFile, s: usize) -> (String, String) {
+        let threshold = self.scalar("whole.contact_threshold_mm", sensor::CONTACT_THRESHOLD_MM);
+        let zero = self.scalar("whole.zero", 0.0);
+        let touched = self.node("Greater", "whole.pressure.touched", &[depth, &threshold], vec![]);
+        let pushing = self.node("Max", "whole.pressure.pushing", &[kpa, &zero], vec![]);
+        let pressure = self.node("Where", "whole.pressure.kept", &[&touched, &pushing, &zero], vec![]);
+        let n = (s * s) as i64;
+        let per_kpa = sensor::DomeAreas::new(&file.sensor).force_per_kpa([s, s]);
+        let per_kpa = transpose(&per_kpa, 3, s * s);
+        let per_kpa = self.floats("whole.force.per_kpa", &[n, 3], &per_kpa);
+        let flat = self.reshape("whole.force.pressure_row", &pressure, &[1, n]);
+        let force = self.node("MatMul", "whole.force.sum", &[&flat, &per_kpa], vec![]);
+        let force = self.reshape("whole.force", &force, &[3]);
+        (pressure, force)
+    }
+}
+
+/// A row-major `[rows, cols]` matrix transposed.
+fn transpose(m: &[f32], rows: usize, cols: usize) -> Vec<f32> {
+    let mut t = vec![0f32; m.len()];
+    for r in 0..rows {
+        for c in 0..cols {
+            t[c * rows + r] = m[r * cols + c];
+        }
+    }
+    t
+}
