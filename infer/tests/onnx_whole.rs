@@ -1,7 +1,8 @@
 //! The whole predictor as one ONNX graph (`model::onnx::export_whole`), run by tract, gives
 //! `Predictor::predict_all`'s depth within 1e-3 mm, its pressure and force, and its gate's
 //! answer: on a pressed frame, on the same frame drifted (the balance at work), and on an
-//! untouched frame (the gate's `If` answers zeros); for RGB and reference-difference inputs.
+//! untouched frame, as it is and drifted (the gate, on the balanced comparison, answers zeros
+//! through its `If`); for RGB and reference-difference inputs.
 
 mod common;
 
@@ -62,8 +63,12 @@ fn check(config: DenseDepthConfig, edit: impl FnOnce(DenseDepth) -> DenseDepth, 
         export_whole(&WholePredictor { net: &net, file: &file, reference: predictor.reference.as_ref() }).unwrap();
     let (_, frame) = pressed(&renderer);
     let untouched = renderer.render(&vec![0.0; frame.len() / 3], Some(77));
-    let cases =
-        [("pressed", frame.clone()), ("drifted", drifted(&frame, [1.06, 0.97, 1.03])), ("untouched", untouched)];
+    let cases = [
+        ("pressed", frame.clone()),
+        ("drifted", drifted(&frame, [1.06, 0.97, 1.03])),
+        ("untouched, drifted", drifted(&untouched, [0.95, 1.04, 1.02])),
+        ("untouched", untouched),
+    ];
     for (what, frame) in cases {
         let want: Prediction = predictor.predict_all(&frame).unwrap();
         let got = run(&bytes, &frame);
@@ -72,7 +77,7 @@ fn check(config: DenseDepthConfig, edit: impl FnOnce(DenseDepth) -> DenseDepth, 
         let deepest = want.depth.depth_mm.iter().fold(0f32, |m, &d| m.max(d));
         eprintln!("{what}: deepest {deepest:.4} mm, largest difference {diff:e} mm");
         assert!(diff <= 1e-3, "{what}: {diff} mm from predict");
-        if what == "untouched" {
+        if what.starts_with("untouched") {
             assert!(!got.contact && got.depth_mm.iter().all(|&d| d == 0.0), "an untouched frame reads zeros");
         } else {
             assert!(got.contact && deepest > min_deepest_mm, "{what}: the pressed frame reads a dent ({deepest} mm)");
@@ -115,22 +120,20 @@ fn scaled(mut conv: Conv2d, channels: std::ops::Range<usize>, gain: f32) -> Conv
     conv
 }
 
+/// Both inputs in one test, one after the other: each bundle's network is drawn from the seeded
+/// device, which tests running side by side would share.
 #[test]
-fn the_whole_predictor_in_onnx_gives_predicts_depth() {
+fn the_whole_predictor_in_onnx_gives_predicts_depth_pressure_and_force() {
     let edit = |mut net: DenseDepth| {
         let n = net.decoder.conv3.weight.dims()[1];
         net.decoder.conv3 = scaled(net.decoder.conv3, 0..n, 5e4);
         net
     };
-    check(DenseDepthConfig::new(DenseNetConfig::tiny()), edit, 0.05);
-}
-
-#[test]
-fn the_whole_predictor_in_onnx_reads_the_reference_difference_and_gives_the_force() {
+    check(DenseDepthConfig::new(DenseNetConfig::tiny()), edit, sensor::CONTACT_THRESHOLD_MM);
     let config = DenseDepthConfig::new(DenseNetConfig::tiny()).with_input(InputChannels::RgbDifference);
     let edit = |mut net: DenseDepth| {
         net.encoder.conv0 = scaled(net.encoder.conv0, 3..6, 2e4);
         net
     };
-    check(config.with_pressure(true), edit, 0.05);
+    check(config.with_pressure(true), edit, 0.1);
 }

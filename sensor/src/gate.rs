@@ -93,6 +93,12 @@ pub fn balance_bin(level: u8, reference_level: u8) -> usize {
     (((ratio - BALANCE_MIN) / balance_step()) as isize).clamp(0, BALANCE_BINS as isize - 1) as usize
 }
 
+/// A grey level with a channel's drift undone: times `inverse` (one over the channel's gain),
+/// rounded, kept in range.
+pub fn undo_level(level: u8, inverse: f32) -> u8 {
+    (level as f32 * inverse).round().clamp(0.0, 255.0) as u8
+}
+
 /// The gain (frame over reference) a bin stands for: its centre.
 pub fn balance_gain(bin: usize) -> f32 {
     BALANCE_MIN + (bin as f32 + 0.5) * balance_step()
@@ -168,7 +174,7 @@ impl Balance {
         let mut out = frame.clone();
         let inverse = self.gain.map(|g| 1.0 / g);
         for p in out.pixels_mut() {
-            p.0 = [0, 1, 2].map(|c| (p.0[c] as f32 * inverse[c]).round().clamp(0.0, 255.0) as u8);
+            p.0 = [0, 1, 2].map(|c| undo_level(p.0[c], inverse[c]));
         }
         out
     }

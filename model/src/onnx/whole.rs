@@ -22,6 +22,7 @@ use crate::InputEncoder;
 use crate::bundle::BundleFile;
 use crate::input::resize_taps;
 use crate::network::DenseDepth;
+use sensor::gate::ContactGate;
 
 /// The graph's input: the crop, `[crop, crop, 3]` uint8, R, G, B.
 pub const FRAME: &str = "frame";
@@ -43,12 +44,12 @@ pub struct WholePredictor<'a> {
     pub reference: Option<&'a RgbImage>,
 }
 
-/// Values the balance and the gate share: the frame's planes and the fitted gains.
-struct Planes {
+/// The balance's answer: the frame's planes with the drift undone, and the fitted gains.
+struct Balanced {
     /// `[3, crop, crop]` float grey levels.
     planes: String,
-    /// `[3, 1, 1]` gains, where there is a reference.
-    gains: Option<String>,
+    /// `[3, 1, 1]` gains.
+    gains: String,
 }
 
 /// The ONNX model of the whole predictor; see the module's description.
@@ -68,17 +69,15 @@ pub fn export_whole(p: &WholePredictor) -> Result<Vec<u8>, OnnxError> {
     }
     let net = p.net.clone().folded();
     let mut g = Graph::default();
-    let frame = g.node("Cast", "whole.frame_f32", &[FRAME], vec![attr_int("to", FLOAT as i64)]);
     let perm = attr_ints("perm", &[2, 0, 1]);
-    let planes = g.node("Transpose", "whole.planes", &[&frame], vec![perm]);
-    let planes = match p.reference {
-        Some(reference) => g.balance(planes, reference, &mask),
-        None => Planes { planes, gains: None },
-    };
-    let gate = match (p.reference, &file.contact_gate) {
-        (Some(reference), Some(record)) => Some(g.gate(&planes, reference, &mask, record.gate)),
+    let levels = g.node("Transpose", "whole.planes_u8", &[FRAME], vec![perm]);
+    let raw = g.cast("whole.planes", &levels, FLOAT);
+    let balanced = p.reference.map(|reference| g.balance(&levels, reference, &mask));
+    let gate = match (p.reference, &balanced, &file.contact_gate) {
+        (Some(reference), Some(b), Some(record)) => Some(g.gate(&raw, &b.gains, reference, &mask, record.gate)),
         _ => None,
     };
+    let planes = balanced.map_or(raw, |b| b.planes);
     let tare = p.reference.map(|r| tare(&net, file, &encoder, r));
 
     // The network's branch: everything from the encoding on.
@@ -86,7 +85,7 @@ pub fn export_whole(p: &WholePredictor) -> Result<Vec<u8>, OnnxError> {
     // after them, which collides with the names its translations give).
     let outer = std::mem::take(&mut g.nodes);
     let outer_constants = g.initializers.len();
-    let input = g.encode(&planes.planes, &encoder, s);
+    let input = g.encode(&planes, &encoder, s);
     let (depth, pressure) = g.densedepth(&net, &input)?;
     let out_hw = file.model.output_hw(hw);
     let trained = sensor::resample::covered_mask(&mask, s, out_hw);
@@ -135,15 +134,16 @@ pub fn export_whole(p: &WholePredictor) -> Result<Vec<u8>, OnnxError> {
             let then_out: Vec<ValueInfoProto> = outputs.iter().map(|(v, _, d)| float_info(v, d)).collect();
             let mut else_nodes = Vec::new();
             let mut else_out = Vec::new();
+            // (Named apart from the branch's own constants, which its graph holds.)
+            let zero = g.scalar("whole.untouched.zero", 0.0);
             for (_, name, dims) in &outputs {
-                let len = dims.iter().product::<i64>() as usize;
-                let zeros = g.floats(&format!("whole.untouched.{name}"), dims, &vec![0.0; len]);
-                let out = format!("whole.untouched.{name}.out");
+                let shape = g.ints(&format!("whole.untouched.{name}.shape"), &[dims.len() as i64], dims);
+                let out = format!("whole.untouched.{name}");
                 else_nodes.push(NodeProto {
-                    input: vec![zeros],
+                    input: vec![zero.clone(), shape],
                     output: vec![out.clone()],
                     name: out.clone(),
-                    op_type: "Identity".into(),
+                    op_type: "Expand".into(),
                     attribute: vec![],
                 });
                 else_out.push(float_info(&out, dims));
@@ -309,10 +309,11 @@ impl Graph {
 
     /// The frame's drift against `reference` taken out, as `Balance::fit` then `undo` do; the
     /// gains are kept for the gate.
-    fn balance(&mut self, planes: String, reference: &RgbImage, mask: &[bool]) -> Planes {
+    fn balance(&mut self, levels: &str, reference: &RgbImage, mask: &[bool]) -> Balanced {
         use sensor::gate::*;
         let n_px = mask.len();
-        let flat = self.reshape("whole.balance.flat", &planes, &[3 * n_px as i64]);
+        let levels = self.cast("whole.balance.levels", levels, INT64);
+        let flat = self.reshape("whole.balance.flat", &levels, &[3 * n_px as i64]);
         // Ratios binned and bins turned into gains by tables the fit's own functions fill, so
         // that no runtime's division (tract multiplies by a reciprocal) moves a bin.
         let table: Vec<i64> = (0..=255u8)
@@ -321,10 +322,16 @@ impl Graph {
         let bin_table = self.ints("whole.balance.bin_table", &[table.len() as i64], &table);
         let gain_table: Vec<f32> = (0..BALANCE_BINS).map(balance_gain).collect();
         let gain_table = self.floats("whole.balance.gain_table", &[BALANCE_BINS as i64], &gain_table);
-        let inverse_table: Vec<f32> = (0..BALANCE_BINS).map(|b| 1.0 / balance_gain(b)).collect();
-        let inverse_table = self.floats("whole.balance.inverse_table", &[BALANCE_BINS as i64], &inverse_table);
-        let zero = self.scalar("whole.zero", 0.0);
-        let (mut gains, mut inverses) = (Vec::new(), Vec::new());
+        // Each bin's undo of every grey level (row `BALANCE_BINS`: no gain, the level itself).
+        let undo_table: Vec<f32> = (0..=BALANCE_BINS)
+            .flat_map(|b| {
+                let inverse = if b == BALANCE_BINS { 1.0 } else { 1.0 / balance_gain(b) };
+                (0..=255u8).map(move |v| undo_level(v, inverse) as f32)
+            })
+            .collect();
+        let undo_table = self.floats("whole.balance.undo_table", &[undo_table.len() as i64], &undo_table);
+        let no_gain = self.ints("whole.balance.no_gain_row", &[1], &[BALANCE_BINS as i64]);
+        let (mut gains, mut rows) = (Vec::new(), Vec::new());
         for c in 0..3 {
             let name = format!("whole.balance.{c}");
             let (idx, q): (Vec<i64>, Vec<u8>) = reference
@@ -336,16 +343,15 @@ impl Graph {
             let n = idx.len();
             if (n as u32) < BALANCE_MIN_SAMPLES {
                 gains.push(self.floats("whole.one1", &[1], &[1.0]));
-                inverses.push(self.floats("whole.one1", &[1], &[1.0]));
+                rows.push(no_gain.clone());
                 continue;
             }
             let idx = self.ints(&format!("{name}.idx"), &[n as i64], &idx);
             // Each sample's row of the table: its reference value times 256.
-            let rows: Vec<i64> = q.iter().map(|&q| q as i64 * 256).collect();
-            let rows = self.ints(&format!("{name}.table_rows"), &[n as i64], &rows);
+            let starts: Vec<i64> = q.iter().map(|&q| q as i64 * 256).collect();
+            let starts = self.ints(&format!("{name}.table_rows"), &[n as i64], &starts);
             let p = self.node("Gather", &format!("{name}.frame"), &[&flat, &idx], vec![]);
-            let p = self.cast(&format!("{name}.frame_i"), &p, INT64);
-            let at = self.node("Add", &format!("{name}.table_at"), &[&p, &rows], vec![]);
+            let at = self.node("Add", &format!("{name}.table_at"), &[&p, &starts], vec![]);
             let bins = self.node("Gather", &format!("{name}.bins"), &[&bin_table, &at], vec![]);
             // The fit's histogram, and its median: the first bin whose running count reaches half.
             let total = self.scalar(&format!("{name}.total"), n as f32);
@@ -387,8 +393,7 @@ impl Graph {
             // half the window's.
             let trimmed = self.first_reaching_half(&format!("{name}.trimmed"), &counts, Some(&below), &inside);
             let gain = self.node("Gather", &format!("{name}.gain_scalar"), &[&gain_table, &trimmed], vec![]);
-            let inverse = self.node("Gather", &format!("{name}.inverse_scalar"), &[&inverse_table, &trimmed], vec![]);
-            inverses.push(self.reshape(&format!("{name}.inverse"), &inverse, &[1]));
+            rows.push(self.reshape(&format!("{name}.row"), &trimmed, &[1]));
             gains.push(self.reshape(&format!("{name}.gain"), &gain, &[1]));
         }
         let refs: Vec<&str> = gains.iter().map(|s| s.as_str()).collect();
@@ -401,26 +406,28 @@ impl Graph {
         let off = self.node("ReduceMax", "whole.balance.max_off", &[&off], vec![attr_int("keepdims", 0)]);
         let tol = self.scalar("whole.balance.no_drift", NO_DRIFT);
         let none = self.node("Less", "whole.balance.none", &[&off, &tol], vec![]);
-        let refs: Vec<&str> = inverses.iter().map(|s| s.as_str()).collect();
-        let inverse = self.node("Concat", "whole.balance.inverses3", &refs, vec![attr_int("axis", 0)]);
-        let inverse = self.reshape("whole.balance.inverse", &inverse, &[3, 1, 1]);
-        let undone = self.node("Mul", "whole.balance.scaled", &[&planes, &inverse], vec![]);
-        let undone = self.round_half_up("whole.balance.rounded", &undone);
-        let top = self.scalar("whole.level.max", 255.0);
-        let undone = self.node("Clip", "whole.balance.undone", &[&undone, &zero, &top], vec![]);
-        let planes = self.node("Where", "whole.balance.planes", &[&none, &planes, &undone], vec![]);
-        Planes { planes, gains: Some(gains) }
+        // The undo by table: each channel's row (its bin's, or no gain's where there is no
+        // drift), every pixel's level looked up in it.
+        let refs: Vec<&str> = rows.iter().map(|s| s.as_str()).collect();
+        let rows = self.node("Concat", "whole.balance.rows3", &refs, vec![attr_int("axis", 0)]);
+        let rows = self.node("Where", "whole.balance.rows_used", &[&none, &no_gain, &rows], vec![]);
+        let width = self.int("whole.int.256", 256);
+        let rows = self.node("Mul", "whole.balance.row_starts", &[&rows, &width], vec![]);
+        let rows = self.reshape("whole.balance.row_starts3", &rows, &[3, 1, 1]);
+        let at = self.node("Add", "whole.balance.undo_at", &[&levels, &rows], vec![]);
+        let planes = self.node("Gather", "whole.balance.planes", &[&undo_table, &at], vec![]);
+        Balanced { planes, gains }
     }
 
     /// Whether the frame differs from the reference by more than the unit's noise (the contact
     /// gate, `ContactGate::differs`): a bool scalar.
-    fn gate(&mut self, p: &Planes, reference: &RgbImage, mask: &[bool], gate: sensor::gate::ContactGate) -> String {
+    /// `raw` is the frame's planes as they came, `gains` the balance's.
+    fn gate(&mut self, raw: &str, gains: &str, reference: &RgbImage, mask: &[bool], gate: ContactGate) -> String {
         let n = reference.width() as i64;
         let q: Vec<f32> = (0..3).flat_map(|c| reference.pixels().map(move |p| p.0[c] as f32)).collect();
         let q = self.floats("whole.gate.reference", &[3, n, n], &q);
-        let gains = p.gains.as_ref().expect("a gate has a reference, so gains");
         let gq = self.node("Mul", "whole.gate.expected", &[gains, &q], vec![]);
-        let d = self.node("Sub", "whole.gate.diff", &[&p.planes, &gq], vec![]);
+        let d = self.node("Sub", "whole.gate.diff", &[raw, &gq], vec![]);
         let d = self.node("Abs", "whole.gate.absdiff", &[&d], vec![]);
         let axis = self.ints("whole.axes.0", &[1], &[0]);
         let mut channels = Vec::new();
