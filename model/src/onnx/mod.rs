@@ -179,17 +179,7 @@ impl Graph {
 
     /// A constant int64 vector, written once however often it is asked for.
     fn int64s(&mut self, name: &str, values: &[i64]) -> String {
-        if self.initializers.iter().any(|t| t.name == name) {
-            return name.into();
-        }
-        let raw_data = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-        self.initializers.push(TensorProto {
-            dims: vec![values.len() as i64],
-            data_type: INT64,
-            name: name.into(),
-            raw_data,
-        });
-        name.into()
+        self.ints(name, &[values.len() as i64], values)
     }
 
     fn conv(&mut self, name: &str, conv: &Conv2d, x: &str) -> Result<String, OnnxError> {

@@ -231,7 +231,7 @@ fn graph_attr(name: &str, g: GraphProto) -> AttributeProto {
 impl Graph {
     /// A constant, written once: a second call with the same name (which names its content)
     /// reuses the first.
-    fn tensor(&mut self, name: &str, dims: &[i64], data_type: i32, raw_data: Vec<u8>) -> String {
+    pub(super) fn tensor(&mut self, name: &str, dims: &[i64], data_type: i32, raw_data: Vec<u8>) -> String {
         if self.initializers.iter().any(|t| t.name == name) {
             return name.into();
         }
@@ -243,7 +243,7 @@ impl Graph {
         self.tensor(name, dims, FLOAT, values.iter().flat_map(|v| v.to_le_bytes()).collect())
     }
 
-    fn ints(&mut self, name: &str, dims: &[i64], values: &[i64]) -> String {
+    pub(super) fn ints(&mut self, name: &str, dims: &[i64], values: &[i64]) -> String {
         self.tensor(name, dims, INT64, values.iter().flat_map(|v| v.to_le_bytes()).collect())
     }
 
