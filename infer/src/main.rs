@@ -272,6 +272,10 @@ struct StreamArgs {
     /// ROS 2 output.
     #[command(flatten)]
     ros2: Ros2Args,
+    /// The live view: each frame, its contact mask, its depth in false colour, the contact
+    /// patch's points (with a force bundle the pressure and the force) and the rates.
+    #[command(flatten)]
+    view: view::ViewArgs,
 }
 
 /// The source a `--source` names: a camera device, a folder, or a glob (a single file too).
@@ -380,8 +384,10 @@ fn stream(args: StreamArgs) -> Result<()> {
         no_tare,
         follow_reference,
         ros2,
+        view,
     } = args;
     let mut ros2 = ros2.sink()?;
+    let view = view.target().map_err(anyhow::Error::msg)?;
     let source_path = std::path::Path::new(&source);
     if let Some(out) = &out {
         let watched = if source_path.is_dir() { Some(source_path) } else { None };
@@ -392,6 +398,11 @@ fn stream(args: StreamArgs) -> Result<()> {
     let predictor = load(&bundle, &dev, no_tare)?;
     let source = stream_source(&source, fps, poll_ms, idle_exit_s, &predictor.file.sensor)?;
     let mut folder = out.as_deref().map(FolderSink::new).transpose()?;
+    #[cfg(feature = "view")]
+    let mut view = view.as_ref().map(infer::stream::ViewSink::open).transpose()?;
+    // Without the feature, `target` refused any view already.
+    #[cfg(not(feature = "view"))]
+    let _ = view;
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     {
         let stop = stop.clone();
@@ -405,6 +416,10 @@ fn stream(args: StreamArgs) -> Result<()> {
     }
     if let Some(ros2) = ros2.as_mut() {
         sinks.push(ros2.as_mut());
+    }
+    #[cfg(feature = "view")]
+    if let Some(view) = view.as_mut() {
+        sinks.push(view);
     }
     let reference = if follow_reference {
         ReferencePolicy::Follow(infer::RefreshConfig::default())
@@ -422,6 +437,10 @@ fn stream(args: StreamArgs) -> Result<()> {
     if let (Some(folder), Some(out)) = (&folder, &out) {
         folder.finish(&report)?;
         println!("wrote {}/stream.json, frames.csv, depth/, cloud/", out.display());
+    }
+    #[cfg(feature = "view")]
+    if let Some(path) = view.map(infer::stream::ViewSink::finish).transpose()?.flatten() {
+        println!("wrote {} (open it with `rerun {}`)", path.display(), path.display());
     }
     Ok(())
 }

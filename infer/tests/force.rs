@@ -6,31 +6,8 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use burn::module::Param;
-use burn::tensor::Tensor;
-use common::{bundle_with, dataset_of, pressed};
+use common::{PRESSURE_KPA, bundle_with, constant, dataset_of, pressed, pressure_config};
 use infer::Predictor;
-use model::{DenseDepth, DenseDepthConfig, DenseNetConfig, DepthScale};
-
-const DEPTH_MM: f32 = 1.0;
-const PRESSURE_KPA: f32 = 50.0;
-
-/// A network whose outputs are constants: `DEPTH_MM` of depth and `PRESSURE_KPA` of pressure at
-/// every pixel, whatever the frame (weights zero, biases set).
-fn constant(mut net: DenseDepth, scale: &DepthScale) -> DenseDepth {
-    let set = |conv: &mut burn::nn::conv::Conv2d, value: f32| {
-        conv.weight = Param::from_tensor(conv.weight.val().zeros_like());
-        let bias = conv.bias.as_ref().expect("a bias").val();
-        conv.bias = Some(Param::from_tensor(Tensor::full(bias.dims(), value, &bias.device())));
-    };
-    set(&mut net.decoder.conv3, scale.to_net(DEPTH_MM));
-    set(net.decoder.pressure.as_mut().expect("the pressure output"), PRESSURE_KPA / model::PRESSURE_KPA_PER_UNIT);
-    net
-}
-
-fn pressure_config() -> DenseDepthConfig {
-    DenseDepthConfig::new(DenseNetConfig::tiny()).with_pressure(true)
-}
 
 /// A uniform pressure on the whole visible cap pushes along the axis with p times the cap's
 /// projected area, pi (R sin theta_max)^2: read through the bundle, its files and its tare.

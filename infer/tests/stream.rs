@@ -281,6 +281,8 @@ fn the_command_streams_a_glob_stops_at_max_frames_and_refuses_bad_sources() {
     refused(&["--bundle", b, "--source", "/dev/video9"], &["/dev/video9", "--features v4l2"]);
     #[cfg(not(feature = "ros2"))]
     refused(&["--bundle", b, "--source", &pattern, "--ros2"], &["--ros2", "--features ros2"]);
+    #[cfg(not(feature = "view"))]
+    refused(&["--bundle", b, "--source", &pattern, "--view-save", "x.rrd"], &["--view-save", "--features view"]);
     #[cfg(feature = "ros2")]
     {
         refused(

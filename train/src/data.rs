@@ -397,13 +397,23 @@ impl DepthDataset {
         })
     }
 
+    /// Sample `i`'s camera image file.
+    fn image_path(&self, i: usize) -> PathBuf {
+        self.units[self.unit_of[i]].dir.join(self.records[i].image.as_ref().expect("checked at open"))
+    }
+
+    /// Sample `i`'s camera image (the crop, RGB) as its file has it.
+    pub fn camera_image(&self, i: usize) -> Result<image::RgbImage, DataError> {
+        Ok(sensor::frame::read(&self.image_path(i))?)
+    }
+
     /// Sample `i` read, checked and resized: the part of [`load`](Self::load) that is the same
     /// every epoch.
     fn decode(&self, i: usize) -> Result<Decoded, DataError> {
         let record = &self.records[i];
         let unit = &self.units[self.unit_of[i]];
         let crop = unit.sensor.crop_size_px;
-        let image_path = unit.dir.join(record.image.as_ref().expect("checked at open"));
+        let image_path = self.image_path(i);
         let img = sensor::frame::read(&image_path)?;
         if img.width() != crop || img.height() != crop {
             return Err(bad(

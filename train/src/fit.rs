@@ -26,6 +26,7 @@ use crate::config::{FitConfig, OnBadData, optimizer};
 use crate::data::{DepthBatcher, DepthDataset};
 use crate::loader::BatchLoader;
 use crate::parallel::DataParallel;
+use crate::view::RunView;
 
 /// Where a run starts when there is no checkpoint: fresh weights or given ones.
 pub struct Start {
@@ -67,6 +68,8 @@ pub struct RunOptions {
     pub decoded_cache_mb: usize,
     /// Test hook: the loss of this global step is made non-finite.
     pub inject_nan_step: Option<u64>,
+    /// Where the run's live view goes, if anywhere (feature `view`).
+    pub view: Option<view::Target>,
 }
 
 impl RunOptions {
@@ -81,6 +84,7 @@ impl RunOptions {
             loader_workers: 2,
             decoded_cache_mb: Self::DEFAULT_DECODED_CACHE_MB,
             inject_nan_step: None,
+            view: None,
         }
     }
 }
@@ -137,6 +141,9 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
         }
         Ok(())
     })?;
+    if let Some(path) = run.view.take().map(RunView::finish).transpose()?.flatten() {
+        eprintln!("wrote {} (open it with `rerun {}`)", path.display(), path.display());
+    }
     let net = match checkpoint::best(run_dir) {
         Some(best) => checkpoint::restore_model(&best, &run.state.model, device)?,
         None => run.net.valid(),
@@ -202,6 +209,7 @@ struct Run<'a> {
     state: RunState,
     /// Consecutive non-finite steps.
     bad_run: u64,
+    view: Option<RunView>,
 }
 
 impl<'a> Run<'a> {
@@ -280,7 +288,9 @@ impl<'a> Run<'a> {
         let loss = config.loss(&train.scale);
         let batcher = DepthBatcher::for_data(&train);
         let parallel = DataParallel::new(&options.devices, batcher.clone(), loss)?;
-        Ok(Run { dir, config, options, train: Arc::new(train), val, batcher, parallel, net, optim, state, bad_run: 0 })
+        let view = options.view.as_ref().map(RunView::open).transpose()?;
+        let train = Arc::new(train);
+        Ok(Run { dir, config, options, train, val, batcher, parallel, net, optim, state, bad_run: 0, view })
     }
 
     fn batches(&self) -> usize {
@@ -354,6 +364,9 @@ impl<'a> Run<'a> {
             self.state.epoch_loss_sum += value;
             self.state.epoch_loss_count += 1;
             self.bad_run = 0;
+            if let Some(view) = &self.view {
+                view.step(self.state.global_step, value, lr)?;
+            }
             return Ok(());
         }
         self.state.skipped_steps += 1;
@@ -427,6 +440,9 @@ impl<'a> Run<'a> {
             seconds: started.elapsed().as_secs_f64(),
             val_pressure_l1_kpa: val.pressure_l1_kpa,
         };
+        if let Some(view) = &self.view {
+            view.epoch(&metrics, state.global_step, &net, &self.val, &self.batcher, device)?;
+        }
         let pressure = metrics.val_pressure_l1_kpa.map_or(String::new(), |p| format!(", pressure L1 {p:.2} kPa"));
         eprintln!(
             "epoch {}: train loss {:.4}, validation L1 {:.4} mm{pressure} (loss {:.4}), {:.0} s",

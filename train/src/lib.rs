@@ -13,6 +13,7 @@ pub mod gate;
 mod loader;
 pub mod parallel;
 mod recipe;
+mod view;
 
 pub use config::{FitConfig, OnBadData, Schedule, SettingError, optimizer};
 pub use fit::{Evaluation, Fitted, RunOptions, Start, fit, fit_on, fit_with, permutation, select, validate};

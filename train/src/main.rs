@@ -175,6 +175,10 @@ struct Common {
     /// Test hook: the loss of this step is made non-finite.
     #[arg(long, hide = true)]
     inject_nan_step: Option<u64>,
+    /// The live view: each step's loss, each epoch's validation figures and the network's
+    /// reading of a few held-out samples.
+    #[command(flatten)]
+    view: view::ViewArgs,
 }
 
 #[derive(clap::Args)]
@@ -292,6 +296,7 @@ fn options(c: &Common) -> Result<RunOptions> {
         loader_workers: c.loader_workers,
         decoded_cache_mb: c.decoded_cache_mb,
         inject_nan_step: c.inject_nan_step,
+        view: c.view.target().map_err(anyhow::Error::msg)?,
     })
 }
 

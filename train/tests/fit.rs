@@ -251,7 +251,7 @@ fn a_run_killed_at_any_moment_resumes_to_the_same_weights() {
 }
 
 #[test]
-fn unknown_unbuilt_or_repeated_devices_are_refused_before_any_work() {
+fn unknown_unbuilt_or_repeated_devices_and_unbuilt_views_are_refused_before_any_work() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
     let refusal = |extra: &[&str]| {
@@ -265,6 +265,9 @@ fn unknown_unbuilt_or_repeated_devices_are_refused_before_any_work() {
     // device cannot start.
     let cuda = refusal(&["--devices", "cuda:0,cuda:1"]);
     assert!(cuda.contains("--features model/cuda") || cuda.contains("cannot start"), "{cuda}");
+    // A live view in a build without one says how to build it.
+    #[cfg(not(feature = "view"))]
+    assert!(refusal(&["--view-save", "run.rrd"]).contains("--features view"));
     assert!(!out.exists(), "nothing is written for a refused device");
 }
 

@@ -14,6 +14,8 @@ mod sink;
 mod source;
 #[cfg(feature = "v4l2")]
 mod v4l2;
+#[cfg(feature = "view")]
+mod view;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -32,6 +34,8 @@ pub use source::{
 };
 #[cfg(feature = "v4l2")]
 pub use v4l2::CameraSource;
+#[cfg(feature = "view")]
+pub use view::ViewSink;
 
 /// A decoded frame waiting for the network.
 pub(crate) struct Arrived {
@@ -46,6 +50,8 @@ pub struct FrameResult<'a> {
     pub name: &'a str,
     /// When it arrived (its results' timestamp).
     pub arrived: Instant,
+    /// The crop the network read, as the camera gave it.
+    pub image: &'a RgbImage,
     /// Depth on the crop's grid (mm).
     pub depth: &'a DepthMap,
     /// Pixels deeper than the contact threshold.
@@ -132,6 +138,7 @@ pub fn run(
                 let result = FrameResult {
                     name: &frame.name,
                     arrived: frame.arrived,
+                    image: &frame.image,
                     depth: &depth,
                     contact_pixels,
                     cloud: &cloud,

@@ -282,9 +282,11 @@ mod tests {
         let force = crate::Force { pressure, wrench };
         let depth = sensor::DepthMap::zeros(side);
         let cloud = crate::PointCloud::default();
+        let image = image::RgbImage::new(side, side);
         let mut result = FrameResult {
             name: "f",
             arrived: std::time::Instant::now(),
+            image: &image,
             depth: &depth,
             contact_pixels: 0,
             cloud: &cloud,

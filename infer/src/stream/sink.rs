@@ -26,6 +26,10 @@ pub enum SinkError {
     /// ROS 2's middleware refused a step (`what`).
     #[error("ROS 2: cannot {what}: {detail}")]
     Ros2 { what: &'static str, detail: String },
+    /// The live view failed (a viewer gone, a recording's disk full).
+    #[cfg(feature = "view")]
+    #[error(transparent)]
+    View(#[from] view::ViewError),
 }
 
 /// Per frame: `depth/NAME.png` (16-bit, micrometres, as `predict --depth-out`) and, for a frame

@@ -101,3 +101,27 @@ pub fn pressed(renderer: &Renderer) -> (Vec<f32>, image::RgbImage) {
     let img = renderer.render(&depth, Some(9));
     (depth, img)
 }
+
+/// The depth (mm) and pressure (kPa) a [`constant`] network reads everywhere.
+pub const DEPTH_MM: f32 = 1.0;
+pub const PRESSURE_KPA: f32 = 50.0;
+
+/// A network whose outputs are constants: `DEPTH_MM` of depth and `PRESSURE_KPA` of pressure at
+/// every pixel, whatever the frame (weights zero, biases set).
+pub fn constant(mut net: model::DenseDepth, scale: &DepthScale) -> model::DenseDepth {
+    use burn::module::Param;
+    use burn::tensor::Tensor;
+    let set = |conv: &mut burn::nn::conv::Conv2d, value: f32| {
+        conv.weight = Param::from_tensor(conv.weight.val().zeros_like());
+        let bias = conv.bias.as_ref().expect("a bias").val();
+        conv.bias = Some(Param::from_tensor(Tensor::full(bias.dims(), value, &bias.device())));
+    };
+    set(&mut net.decoder.conv3, scale.to_net(DEPTH_MM));
+    set(net.decoder.pressure.as_mut().expect("the pressure output"), PRESSURE_KPA / model::PRESSURE_KPA_PER_UNIT);
+    net
+}
+
+/// The tiny network with the pressure output.
+pub fn pressure_config() -> DenseDepthConfig {
+    DenseDepthConfig::new(DenseNetConfig::tiny()).with_pressure(true)
+}

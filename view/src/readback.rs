@@ -1,0 +1,129 @@
+//! A recording read back with the Rerun SDK's own decoder: what a viewer would be shown.
+
+use std::collections::BTreeSet;
+use std::io::BufReader;
+use std::path::Path;
+
+use re_chunk::Chunk;
+use re_log_encoding::rrd::DecoderApp;
+use re_log_types::{LogMsg, TimelineName};
+use rerun::ComponentDescriptor;
+use rerun::components::{ImageBuffer, ImageFormat, Position3D, Scalar, Vector3D};
+
+use crate::ViewError;
+
+/// The data of a `.rrd` file, chunk by chunk.
+pub struct Recording {
+    chunks: Vec<Chunk>,
+}
+
+/// Reads the recording at `path`.
+pub fn read_back(path: &Path) -> Result<Recording, ViewError> {
+    let bad = |detail: String| ViewError::Read { path: path.to_path_buf(), detail };
+    let file = std::fs::File::open(path).map_err(|source| ViewError::Io { path: path.to_path_buf(), source })?;
+    let mut chunks = Vec::new();
+    for msg in DecoderApp::decode_lazy(BufReader::new(file)) {
+        if let LogMsg::ArrowMsg(_, arrow) = msg.map_err(|e| bad(e.to_string()))? {
+            chunks.push(Chunk::from_arrow_msg(&arrow).map_err(|e| bad(e.to_string()))?);
+        }
+    }
+    Ok(Recording { chunks })
+}
+
+/// One logged value: where it sits on the timeline asked for, and the value.
+pub type Logged<T> = (i64, T);
+
+impl Recording {
+    /// The entity paths that hold data (`/camera/frame` and the like, as Rerun writes them).
+    pub fn entities(&self) -> BTreeSet<String> {
+        self.chunks.iter().map(|c| c.entity_path().to_string()).collect()
+    }
+
+    /// The batches of `component` logged to `entity`, by their index on `timeline`.
+    fn column<C: rerun::Component + Clone>(
+        &self,
+        entity: &str,
+        timeline: &str,
+        descriptor: ComponentDescriptor,
+    ) -> Vec<Logged<Vec<C>>> {
+        let entity = re_log_types::EntityPath::from(entity);
+        let Ok(timeline) = TimelineName::try_new(timeline) else { return Vec::new() };
+        let mut rows = Vec::new();
+        for chunk in self.chunks.iter().filter(|c| *c.entity_path() == entity) {
+            let indices = chunk.iter_component_indices(timeline, descriptor.component);
+            for ((time, _), batch) in indices.zip(chunk.iter_component::<C>(descriptor.component)) {
+                rows.push((time.as_i64(), batch.to_vec()));
+            }
+        }
+        rows.sort_by_key(|(t, _)| *t);
+        rows
+    }
+
+    /// The time series logged to `entity`.
+    pub fn scalars(&self, entity: &str, timeline: &str) -> Vec<Logged<f64>> {
+        let rows = self.column::<Scalar>(entity, timeline, rerun::Scalars::descriptor_scalars());
+        rows.into_iter().filter_map(|(t, v)| v.first().map(|s| (t, s.0.0))).collect()
+    }
+
+    /// The images logged to `entity` (by their archetype's descriptors): format and bytes.
+    fn images(
+        &self,
+        entity: &str,
+        timeline: &str,
+        buffer: ComponentDescriptor,
+        format: ComponentDescriptor,
+    ) -> Vec<Logged<(ImageFormat, Vec<u8>)>> {
+        let buffers = self.column::<ImageBuffer>(entity, timeline, buffer);
+        let formats = self.column::<ImageFormat>(entity, timeline, format);
+        buffers
+            .into_iter()
+            .zip(formats)
+            .filter_map(|((t, b), (_, f))| Some((t, (*f.first()?, b.first()?.0.0.to_vec()))))
+            .collect()
+    }
+
+    /// The depth images logged to `entity`: size (px) and values (f32, the view's unit: mm).
+    pub fn depth_images(&self, entity: &str, timeline: &str) -> Vec<Logged<([u32; 2], Vec<f32>)>> {
+        let images = self.images(
+            entity,
+            timeline,
+            rerun::DepthImage::descriptor_buffer(),
+            rerun::DepthImage::descriptor_format(),
+        );
+        images.into_iter().map(|(t, (f, bytes))| (t, ([f.width, f.height], f32s(&bytes)))).collect()
+    }
+
+    /// The colour (or single-channel) images logged to `entity`: size (px) and raw bytes.
+    pub fn colour_images(&self, entity: &str, timeline: &str) -> Vec<Logged<([u32; 2], Vec<u8>)>> {
+        let images =
+            self.images(entity, timeline, rerun::Image::descriptor_buffer(), rerun::Image::descriptor_format());
+        images.into_iter().map(|(t, (f, bytes))| (t, ([f.width, f.height], bytes))).collect()
+    }
+
+    /// The segmentation images logged to `entity`: size (px) and classes.
+    pub fn masks(&self, entity: &str, timeline: &str) -> Vec<Logged<([u32; 2], Vec<u8>)>> {
+        let images = self.images(
+            entity,
+            timeline,
+            rerun::SegmentationImage::descriptor_buffer(),
+            rerun::SegmentationImage::descriptor_format(),
+        );
+        images.into_iter().map(|(t, (f, bytes))| (t, ([f.width, f.height], bytes))).collect()
+    }
+
+    /// The points logged to `entity`.
+    pub fn points(&self, entity: &str, timeline: &str) -> Vec<Logged<Vec<[f32; 3]>>> {
+        let rows = self.column::<Position3D>(entity, timeline, rerun::Points3D::descriptor_positions());
+        rows.into_iter().map(|(t, p)| (t, p.iter().map(|p| p.0.0).collect())).collect()
+    }
+
+    /// The arrows' vectors logged to `entity`.
+    pub fn arrows(&self, entity: &str, timeline: &str) -> Vec<Logged<Vec<[f32; 3]>>> {
+        let rows = self.column::<Vector3D>(entity, timeline, rerun::Arrows3D::descriptor_vectors());
+        rows.into_iter().map(|(t, v)| (t, v.iter().map(|v| v.0.0).collect())).collect()
+    }
+}
+
+fn f32s(bytes: &[u8]) -> Vec<f32> {
+    bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
+}
