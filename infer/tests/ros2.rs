@@ -36,6 +36,7 @@ fn a_subscriber_receives_predicts_cloud_depth_and_summary() {
     let dent = infer::stream::FrameResult {
         name: "dent",
         arrived: Instant::now(),
+        image: &frame,
         depth: &depth,
         contact_pixels,
         cloud: &cloud,
