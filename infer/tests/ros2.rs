@@ -32,12 +32,14 @@ fn a_subscriber_receives_predicts_cloud_depth_and_summary() {
     }
     let cloud = p.point_cloud(&depth, sensor::CONTACT_THRESHOLD_MM);
     assert!(!cloud.points_mm.is_empty());
-    let contact_pixels = Predictor::contact_mask(&depth, sensor::CONTACT_THRESHOLD_MM).iter().filter(|&&c| c).count();
+    let contact = Predictor::contact_mask(&depth, sensor::CONTACT_THRESHOLD_MM);
+    let contact_pixels = contact.iter().filter(|&&c| c).count();
     let dent = infer::stream::FrameResult {
         name: "dent",
         arrived: Instant::now(),
         image: &frame,
         depth: &depth,
+        contact: &contact,
         contact_pixels,
         cloud: &cloud,
         network_ran: true,

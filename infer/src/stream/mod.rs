@@ -54,6 +54,8 @@ pub struct FrameResult<'a> {
     pub image: &'a RgbImage,
     /// Depth on the crop's grid (mm).
     pub depth: &'a DepthMap,
+    /// Whether each pixel of `depth` is deeper than the contact threshold.
+    pub contact: &'a [bool],
     /// Pixels deeper than the contact threshold.
     pub contact_pixels: usize,
     /// Points of the contact patch (sensor frame, mm); empty without contact.
@@ -128,8 +130,8 @@ pub fn run(
             while let Some(frame) = mailbox.take() {
                 // The capture made it the crop: its size is not checked again.
                 let crate::Prediction { depth, force, network_ran } = live.predict_all_crop(&frame.image);
-                let contact_pixels =
-                    Predictor::contact_mask(&depth, CONTACT_THRESHOLD_MM).iter().filter(|&&c| c).count();
+                let contact = Predictor::contact_mask(&depth, CONTACT_THRESHOLD_MM);
+                let contact_pixels = contact.iter().filter(|&&c| c).count();
                 let cloud = if contact_pixels > 0 {
                     live.point_cloud(&depth, CONTACT_THRESHOLD_MM)
                 } else {
@@ -140,6 +142,7 @@ pub fn run(
                     arrived: frame.arrived,
                     image: &frame.image,
                     depth: &depth,
+                    contact: &contact,
                     contact_pixels,
                     cloud: &cloud,
                     network_ran,

@@ -288,6 +288,7 @@ mod tests {
             arrived: std::time::Instant::now(),
             image: &image,
             depth: &depth,
+            contact: &[],
             contact_pixels: 0,
             cloud: &cloud,
             network_ran: true,

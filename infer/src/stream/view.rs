@@ -8,7 +8,6 @@ use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use sensor::CONTACT_THRESHOLD_MM;
 use view::{FORCE_ARROW_MM_PER_N, Target, View, ViewError, entity, timeline};
 
 use super::{FrameResult, Sink, SinkError};
@@ -47,7 +46,7 @@ impl ViewSink {
         let max_mm = predictor.file.sensor.max_depth_mm as f32;
         let depth = result.depth;
         view.rgb(entity::FRAME, result.image)?;
-        view.mask(entity::CONTACT, depth.size_px, &Predictor::contact_mask(depth, CONTACT_THRESHOLD_MM))?;
+        view.mask(entity::CONTACT, depth.size_px, result.contact)?;
         view.depth(entity::DEPTH, [depth.size_px; 2], &depth.depth_mm, max_mm)?;
         // A point's depth is the dome's radius less its distance from the centre.
         let radius_mm = predictor.file.sensor.radius_mm as f32;
