@@ -151,9 +151,11 @@ impl Generator<'_> {
         let start = Instant::now();
         let _claim = self.prepare_folder()?;
         let out = &self.out;
+        let shard = self.params.shard;
+        let mine = move |id: &u32| formats::Shard::includes(shard, *id);
         let done = resumable::finished(
             "samples",
-            0..self.params.count,
+            (0..self.params.count).filter(mine),
             |id| out.join(format!("samples/{}.json", sample_name(id))),
             |r: &SampleRecord| {
                 let mut files: Vec<PathBuf> = r.files().map(|f| out.join(f)).collect();
@@ -170,7 +172,7 @@ impl Generator<'_> {
             },
         )?;
         let resumed = done.len();
-        let todo: Vec<u32> = (0..self.params.count).filter(|id| !done.contains_key(id)).collect();
+        let todo: Vec<u32> = (0..self.params.count).filter(|id| mine(id) && !done.contains_key(id)).collect();
         let rays = RayBundle::new(self.sensor);
         let mask = self.sensor.valid_mask();
         let dome = self.params.force_labels.then(|| Dome::new(self.sensor, &rays));
@@ -334,8 +336,9 @@ pub fn write_unit_files(dir: &Path, renderer: &Renderer) -> Result<()> {
 /// Human-readable statistics of a finished run.
 pub fn report_lines(report: &RunReport) -> Vec<String> {
     let m = &report.manifest;
+    let share = m.generator.as_ref().and_then(|p| p.shard).map_or(String::new(), |s| format!(" (shard {s})"));
     let mut lines = vec![format!(
-        "{} samples ({} new, {} from an earlier run) in {:.1} s: {:.1} samples/s",
+        "{} samples{share} ({} new, {} from an earlier run) in {:.1} s: {:.1} samples/s",
         m.samples.len(),
         report.generated,
         report.resumed,

@@ -61,6 +61,9 @@ pub struct Labeller<'a> {
     /// The elastomer whose contact model gives each sample's force labels (pressure map and
     /// wrench); `None`: depth labels only.
     pub force: Option<Material>,
+    /// Label only this share of the rows (`--shard K/N`: rows whose 0-based position in the log
+    /// is K modulo N); `None`: all.
+    pub shard: Option<formats::Shard>,
 }
 
 /// A labelling as `dataset label` (or the Python package's `label_session`) asks for it, by
@@ -76,6 +79,7 @@ pub struct LabelRequest {
     pub on_bad_row: OnBadRow,
     pub z: ZReading,
     pub force: Option<Material>,
+    pub shard: Option<formats::Shard>,
     /// Whether errors name the command line's flags (`--kit`) or the arguments' plain names.
     pub flags: bool,
 }
@@ -97,6 +101,7 @@ impl LabelRequest {
             on_bad_row: self.on_bad_row,
             z: self.z,
             force: self.force,
+            shard: self.shard,
         }
         .run()
     }
@@ -161,6 +166,9 @@ impl Labeller<'_> {
         }
         let mut jobs = Vec::new();
         for (id, capture) in log.rows.iter().enumerate() {
+            if !formats::Shard::includes(self.shard, id as u32) {
+                continue;
+            }
             let trial = self.kit.trials.iter().find(|t| t.split == capture.split && t.number == capture.trial);
             let problem = match trial {
                 None => Some(format!(
@@ -204,8 +212,13 @@ impl Labeller<'_> {
         };
         // The log may grow (or change) between runs: what the folder is fixed to is the session,
         // the kit and the sensor, and each row is checked by its digest.
-        let source =
-            LabelSource { session: params.session.clone(), kit: params.kit.clone(), z: self.z, force: self.force };
+        let source = LabelSource {
+            session: params.session.clone(),
+            kit: params.kit.clone(),
+            z: self.z,
+            force: self.force,
+            shard: self.shard,
+        };
         let file = LabelFile { format_version: DATASET_FORMAT_VERSION, sensor: self.sensor.clone(), params: source };
         let kit = std::path::Path::new(&self.kit.source);
         let mut inputs = vec![self.session.as_path()];
@@ -437,6 +450,10 @@ pub struct LabelSource {
     /// The elastomer the force labels are solved with (absent: no force labels).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub force: Option<Material>,
+    /// The share of the log's rows this folder labels (absent: all); `dataset merge` joins
+    /// the shares.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard: Option<formats::Shard>,
 }
 
 /// The parameters file of a labelled dataset.

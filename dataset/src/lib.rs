@@ -17,6 +17,7 @@ pub mod kit;
 pub mod label;
 pub mod looks;
 pub mod mechanics;
+pub mod merge;
 pub mod mesh;
 pub mod procedural;
 // AVX2 kernels in some of their modules (which allow unsafe code by name), reached only

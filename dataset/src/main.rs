@@ -38,6 +38,19 @@ enum Command {
     /// cropped around the calibrated optical centre with the depth ray-cast for its logged pose
     /// (resumable: run the same command again after a kill).
     Label(LabelArgs),
+    /// Join the shares of a generation or labelling run as a job array (`--shard K/N`) into the
+    /// dataset one run would have written, byte for byte.
+    Merge(MergeArgs),
+}
+
+#[derive(clap::Args)]
+struct MergeArgs {
+    /// The shares' folders: every share of one run, once each, in any order.
+    #[arg(required = true)]
+    shards: Vec<PathBuf>,
+    /// The dataset folder to write.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(clap::Args)]
@@ -70,6 +83,10 @@ struct LabelArgs {
     /// column overrides it.
     #[arg(long, requires = "z_from")]
     z_zero_mm: Option<f32>,
+    /// Label only share K of N of the log's rows (0-based: rows whose position in the log is K
+    /// modulo N), one task of a job array; `dataset merge` joins the shares.
+    #[arg(long)]
+    shard: Option<formats::Shard>,
     /// Depth labels only: no pressure maps or wrenches.
     #[arg(long)]
     no_force_labels: bool,
@@ -154,6 +171,10 @@ struct GenerateArgs {
     /// With --session: frames as JPEG of this quality (1..100), as USB cameras stream them.
     #[arg(long, requires = "session", value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: Option<u8>,
+    /// Make only share K of N of the samples (0-based: those whose id is K modulo N), one task of
+    /// a job array; `dataset merge` joins the shares into the dataset one run writes.
+    #[arg(long, conflicts_with = "session")]
+    shard: Option<formats::Shard>,
     /// Number of samples.
     #[arg(long, default_value_t = 100)]
     count: u32,
@@ -268,6 +289,7 @@ fn generate(args: GenerateArgs) -> Result<()> {
         image_model: formats::dataset::IMAGE_MODEL,
         random_looks: args.random_looks,
         force_labels: !args.no_force_labels,
+        shard: args.shard,
     };
     // Travel that presses most contact past the sensor's depth range gives depth maps that say
     // nothing there: refused with the figure, or warned about.
@@ -325,6 +347,7 @@ fn label(args: LabelArgs) -> Result<()> {
             youngs_modulus_mpa: args.youngs_modulus_mpa,
             poisson_ratio: args.poisson_ratio,
         }),
+        shard: args.shard,
         flags: true,
     };
     let report = request.run()?;
@@ -332,6 +355,19 @@ fn label(args: LabelArgs) -> Result<()> {
         println!("{line}");
     }
     println!("wrote {}", args.out.join("manifest.json").display());
+    Ok(())
+}
+
+fn merge(args: MergeArgs) -> Result<()> {
+    let report = dataset::merge::merge(&args.shards, &args.out)?;
+    println!(
+        "{} samples ({} files) from {} shares, as one run writes them ({}); wrote {}",
+        report.samples,
+        report.files,
+        report.shards,
+        report.made_by,
+        args.out.join("manifest.json").display()
+    );
     Ok(())
 }
 
@@ -415,6 +451,7 @@ fn main() -> ExitCode {
         Command::Sawtooth(args) => sawtooth(args),
         Command::Calibrate(args) => run_calibration(args),
         Command::Label(args) => label(args),
+        Command::Merge(args) => merge(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,22 +1,14 @@
 //! Bad kits, bad travel and outputs onto inputs are refused with the file and the fix.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use dataset::Mesh;
 use dataset::procedural::ProceduralKit;
 use glam::Vec3;
 
-const BIN: &str = env!("CARGO_BIN_EXE_dataset");
-
-fn dataset(args: &[&str]) -> Output {
-    Command::new(BIN).args(args).output().unwrap()
-}
-
-fn refused(r: Output) -> String {
-    assert!(!r.status.success(), "expected a refusal: {}", String::from_utf8_lossy(&r.stdout));
-    String::from_utf8_lossy(&r.stderr).into_owned()
-}
+mod common;
+use common::{dataset, refused};
 
 /// A kit folder in the authors' layout holding one procedural indicator and indenter, written
 /// with `to_file` turning each sensor-frame point into the file's coordinates.

@@ -10,21 +10,12 @@ use formats::dataset::Manifest;
 use sensor::DepthMap;
 
 mod common;
-use common::files;
-
-/// The folders whose files make up a dataset here.
-const DATASET_FILES: [&str; 6] = ["", "samples", "depth", "images", "unit", "pressure"];
+use common::{dataset, files, ok};
 
 const BIN: &str = env!("CARGO_BIN_EXE_dataset");
 
-fn dataset(args: &[&str]) -> Output {
-    Command::new(BIN).args(args).output().unwrap()
-}
-
-fn ok(r: Output) -> String {
-    assert!(r.status.success(), "{}\n{}", String::from_utf8_lossy(&r.stdout), String::from_utf8_lossy(&r.stderr));
-    String::from_utf8_lossy(&r.stdout).into_owned()
-}
+/// The folders whose files make up a dataset here.
+const DATASET_FILES: [&str; 6] = ["", "samples", "depth", "images", "unit", "pressure"];
 
 fn strings(args: &[&str]) -> Vec<String> {
     common::kill::strings(args)

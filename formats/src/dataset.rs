@@ -261,6 +261,10 @@ pub struct GeneratorParams {
     /// `generator.json`: none.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub force_labels: bool,
+    /// The share of the samples this folder holds (`--shard K/N`; absent: all of them). A
+    /// merge of every share (`dataset merge`) is the dataset without it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard: Option<crate::Shard>,
 }
 
 /// The image model this version renders (see [`GeneratorParams::image_model`]).
@@ -289,6 +293,7 @@ impl GeneratorParams {
             image_model: IMAGE_MODEL,
             random_looks: false,
             force_labels: true,
+            shard: None,
         }
     }
 }

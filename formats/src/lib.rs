@@ -23,6 +23,7 @@ pub mod output;
 pub mod progress;
 pub mod rng;
 pub mod session;
+pub mod shard;
 pub mod stats;
 pub mod training;
 
@@ -32,3 +33,4 @@ pub use json::{FormatError, read_json, write_json};
 pub use names::{UnknownName, find_by_name};
 pub use progress::Progress;
 pub use rng::SplitMix64;
+pub use shard::Shard;

@@ -34,6 +34,7 @@ fn a_session_from_another_image_model_labels_to_the_generators_depth() {
             on_bad_row: OnBadRow::Stop,
             z: Default::default(),
             force: None,
+            shard: None,
         };
         let report = report_lines(&labeller.run().unwrap()).join("\n");
         assert!(!report.contains("logging slip"), "no untouched frame differs beyond this unit's noise: {report}");

@@ -107,4 +107,5 @@ def label_session(
     force_labels: bool = True,
     youngs_modulus_mpa: float = ...,
     poisson_ratio: float = ...,
+    shard: Optional[str] = None,
 ) -> List[str]: ...

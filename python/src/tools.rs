@@ -74,7 +74,7 @@ pub(crate) fn calibrate(
     session, out, sensor_json, kit = "procedural", kit_scale = 1.0, on_bad_row = "stop",
     z_from = "seated", z_zero_mm = None, force_labels = true,
     youngs_modulus_mpa = dataset::mechanics::Material::PAPER.youngs_modulus_mpa,
-    poisson_ratio = dataset::mechanics::Material::PAPER.poisson_ratio
+    poisson_ratio = dataset::mechanics::Material::PAPER.poisson_ratio, shard = None
 ))]
 #[allow(clippy::too_many_arguments)] // Python's keyword arguments, one per flag of `dataset label`.
 pub(crate) fn label_session(
@@ -90,6 +90,7 @@ pub(crate) fn label_session(
     force_labels: bool,
     youngs_modulus_mpa: f64,
     poisson_ratio: f64,
+    shard: Option<&str>,
 ) -> PyResult<Vec<String>> {
     let sensor: Sensor = serde_json::from_str(sensor_json)
         .map_err(|e| PyValueError::new_err(format!("the sensor description is not one: {e}")))?;
@@ -103,6 +104,9 @@ pub(crate) fn label_session(
         on_bad_row: choice(on_bad_row, "on_bad_row")?,
         z: dataset::touch::ZReading { from: choice(z_from, "z_from")?, zero_mm: z_zero_mm },
         force: force_labels.then_some(dataset::mechanics::Material { youngs_modulus_mpa, poisson_ratio }),
+        shard: shard
+            .map(|s| s.parse::<formats::Shard>().map_err(|e| PyValueError::new_err(format!("shard: {e}"))))
+            .transpose()?,
         flags: false,
     };
     let report = py.detach(|| request.run()).map_err(error)?;

@@ -82,7 +82,19 @@ pub fn run(args: Args) -> Result<()> {
             let outcome = match calibrate(&img, &opts) {
                 Ok(cal) => {
                     let (px, deg) = compare(&cal.sensor, &truth);
-                    Outcome::Calibrated { px, deg, stated_px: cal.uncertainty_px }
+                    // Where the error comes from: the optical centre, or the map about it.
+                    let (c, t) = (&cal.sensor.correspondence, &truth.correspondence);
+                    let mut centred = cal.sensor.clone();
+                    centred.correspondence.centre_u_px = t.centre_u_px;
+                    centred.correspondence.centre_v_px = t.centre_v_px;
+                    let what = format!(
+                        "{what} | centre off ({:+.2}, {:+.2}) px (stated sd {:.2}); about the true centre {:.3} px",
+                        c.centre_u_px - t.centre_u_px,
+                        c.centre_v_px - t.centre_v_px,
+                        cal.centre_sd_px,
+                        compare(&centred, &truth).0
+                    );
+                    return (seed, what, Outcome::Calibrated { px, deg, stated_px: cal.uncertainty_px });
                 }
                 Err(e) => Outcome::Refused(e.to_string()),
             };

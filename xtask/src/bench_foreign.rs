@@ -119,6 +119,7 @@ fn one(
         on_bad_row: OnBadRow::Stop,
         z: Default::default(),
         force: None,
+        shard: None,
     }
     .run()?;
     let device = model::backend::default_device();

@@ -87,6 +87,7 @@ pub fn run(args: Args) -> Result<()> {
             on_bad_row: OnBadRow::Stop,
             z: Default::default(),
             force: None,
+            shard: None,
         }
         .run()?;
         sets.push((format!("gelcam unit {g} (membrane {:.2} px)", unit.look.membrane_sigma_px), data, None));

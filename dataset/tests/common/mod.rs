@@ -1,6 +1,28 @@
 //! What the dataset's end-to-end tests share.
 
 use std::path::Path;
+use std::process::{Command, Output};
+
+/// The `dataset` command run with `args`.
+#[allow(dead_code)]
+pub fn dataset(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_dataset")).args(args).output().unwrap()
+}
+
+/// A run's standard output, once it is known to have succeeded (its output and errors shown
+/// where it did not).
+#[allow(dead_code)]
+pub fn ok(r: Output) -> String {
+    assert!(r.status.success(), "{}\n{}", String::from_utf8_lossy(&r.stdout), String::from_utf8_lossy(&r.stderr));
+    String::from_utf8_lossy(&r.stdout).into_owned()
+}
+
+/// A run's standard error, once it is known to have failed.
+#[allow(dead_code)]
+pub fn refused(r: Output) -> String {
+    assert!(!r.status.success(), "expected a refusal: {}", String::from_utf8_lossy(&r.stdout));
+    String::from_utf8_lossy(&r.stderr).into_owned()
+}
 
 #[allow(dead_code)]
 pub mod kill;

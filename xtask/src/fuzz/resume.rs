@@ -47,6 +47,7 @@ fn label(session: &Path, out: &Path, sensor: &Sensor, kit: &Kit) -> Result<()> {
         on_bad_row: OnBadRow::Skip,
         z: Default::default(),
         force: None,
+        shard: None,
     };
     labeller.run().map(|_| ())
 }
