@@ -10,6 +10,13 @@
 //! get a fresh copy each step (their running statistics are dropped). The other devices have one
 //! long-lived worker thread each: GPU runtimes keep per-thread state, which a thread per step
 //! would create anew every step. With one device nothing is copied and no thread is started.
+//!
+//! Why this is not Burn's own data parallelism (`burn::tensor::distributed`: one replica per
+//! device, gradients all-reduced during the backward pass): in Burn 0.22.1 the collectives are
+//! implemented for CubeCL's CUDA runtime alone (NCCL). The CPU backend this project trains with
+//! (Flex) and wgpu have none (`unimplemented!()`, no device transport), so there this module is
+//! what Burn lacks; under CUDA, Burn's path is the one to move to once a CUDA machine can test it
+//! (`docs/multi-node.md`).
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::mpsc::{Receiver, Sender, channel};
