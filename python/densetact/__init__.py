@@ -184,11 +184,14 @@ def label_session(
     force_labels: bool = True,
     youngs_modulus_mpa: Optional[float] = None,
     poisson_ratio: Optional[float] = None,
+    shard: Optional[str] = None,
 ) -> Dataset:
     """Labels a capture session (``captures.csv``, its frames, the reference frame) into the
     dataset folder ``out`` with the unit's sensor description (a dict, a ``Calibration`` or a
     JSON file), as ``dataset label`` does: resumable, refusing a folder that is not its own.
-    Returns the dataset, its ``report`` the lines ``dataset label`` prints."""
+    ``shard="K/N"`` labels only share K (0-based) of N of the rows, one task of a job array
+    (``dataset merge`` joins the shares). Returns the dataset, its ``report`` the lines
+    ``dataset label`` prints."""
     if isinstance(sensor, Calibration):
         sensor = sensor.sensor
     if isinstance(sensor, dict):
@@ -213,6 +216,7 @@ def label_session(
         on_bad_row=on_bad_row,
         z_from=z_from,
         z_zero_mm=z_zero_mm,
+        shard=shard,
         force_labels=force_labels,
         **material,
     )

@@ -42,6 +42,13 @@ def test_a_session_is_labelled_into_a_dataset(session, rows, tmp_path):
     again = densetact.label_session(session, cal.sensor, out)
     assert [r for _, _, r in again] == [r for _, _, r in ds]
 
+    # A job array's shares hold the rows dealt to them, together all of them.
+    shares = [densetact.label_session(session, cal, tmp_path / f"share{k}", shard=f"{k}/2") for k in range(2)]
+    assert [len(s) for s in shares] == [(len(rows) + 1) // 2, len(rows) // 2]
+    assert sorted(r["id"] for s in shares for _, _, r in s) == sorted(r["id"] for _, _, r in ds)
+    with pytest.raises(ValueError, match="shard"):
+        densetact.label_session(session, cal, tmp_path / "x", shard="2/2")
+
     with pytest.raises(ValueError, match="on_bad_row must be one of stop, skip"):
         densetact.label_session(session, cal, tmp_path / "x", on_bad_row="ignore")
     with pytest.raises(ValueError, match="z_from"):
