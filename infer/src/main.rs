@@ -276,6 +276,10 @@ struct StreamArgs {
     /// patch's points (with a force bundle the pressure and the force) and the rates.
     #[command(flatten)]
     view: view::ViewArgs,
+    /// With a view: the pictures (the frame, its mask, depth, cloud and pressure) of every Nth
+    /// frame only, from the first; the time series and the force of every frame.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    view_every: u32,
 }
 
 /// The source a `--source` names: a camera device, a folder, or a glob (a single file too).
@@ -385,6 +389,7 @@ fn stream(args: StreamArgs) -> Result<()> {
         follow_reference,
         ros2,
         view,
+        view_every,
     } = args;
     let mut ros2 = ros2.sink()?;
     let view = view.target().map_err(anyhow::Error::msg)?;
@@ -399,10 +404,10 @@ fn stream(args: StreamArgs) -> Result<()> {
     let source = stream_source(&source, fps, poll_ms, idle_exit_s, &predictor.file.sensor)?;
     let mut folder = out.as_deref().map(FolderSink::new).transpose()?;
     #[cfg(feature = "view")]
-    let mut view = view.as_ref().map(infer::stream::ViewSink::open).transpose()?;
+    let mut view = view.as_ref().map(|t| infer::stream::ViewSink::open(t, view_every)).transpose()?;
     // Without the feature, `target` refused any view already.
     #[cfg(not(feature = "view"))]
-    let _ = view;
+    let _ = (view, view_every);
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     {
         let stop = stop.clone();

@@ -118,6 +118,29 @@ fn a_recorded_stream_reads_back_as_its_files_say() {
     }
     assert_eq!(pressed_frames, 2, "the gate opened for the pressed frames alone");
 
+    // `--view-every 2`: the pictures of frames 0 and 2 only, the time series of all four.
+    let sparse = tmp.path().join("sparse.rrd");
+    let o = infer(&[
+        "--bundle",
+        bundle.to_str().unwrap(),
+        "--source",
+        &pattern,
+        "--no-tare",
+        "--view-save",
+        sparse.to_str().unwrap(),
+        "--view-every",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rec = view::read_back(&sparse).unwrap();
+    assert_eq!(rec.colour_images(entity::FRAME, t).iter().map(|i| i.0).collect::<Vec<_>>(), [0, 2]);
+    assert_eq!(rec.depth_images(entity::DEPTH, t).iter().map(|i| i.0).collect::<Vec<_>>(), [0, 2]);
+    assert_eq!(rec.points(entity::CLOUD, t).iter().map(|i| i.0).collect::<Vec<_>>(), [0, 2]);
+    assert_eq!(rec.scalars(entity::NETWORK_RAN, t).len(), frames.len());
+    assert_eq!(rec.scalars(entity::FORCE_N[2], t).len(), frames.len());
+    let o = infer(&["--bundle", bundle.to_str().unwrap(), "--source", &pattern, "--view-every", "0"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--view-every"));
+
     // A recording that cannot be written stops the stream before it starts, naming the file;
     // the view's options need each other's absence.
     let missing = tmp.path().join("no-such-folder").join("run.rrd");

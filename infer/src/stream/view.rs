@@ -23,13 +23,17 @@ pub struct ViewSink {
     recent: VecDeque<Instant>,
     /// Whether a force arrow is showing (cleared when the contact goes).
     arrow_shown: bool,
+    /// The images, cloud and pressure of every `every`-th frame only.
+    every: u32,
 }
 
 impl ViewSink {
-    /// Opens the view on `target`.
-    pub fn open(target: &Target) -> Result<Self, SinkError> {
+    /// Opens the view on `target`, with the images, cloud and pressure of every `every`-th
+    /// frame (the first, then each `every` on; 1: all) and the time series of all.
+    pub fn open(target: &Target, every: u32) -> Result<Self, SinkError> {
         let view = View::open("densetact_stream", target)?;
-        Ok(ViewSink { view, frames: 0, started: None, recent: VecDeque::new(), arrow_shown: false })
+        let every = every.max(1);
+        Ok(ViewSink { view, frames: 0, started: None, recent: VecDeque::new(), arrow_shown: false, every })
     }
 
     /// Sends what is pending; a recording gets its name. Returns the recording's path.
@@ -42,19 +46,24 @@ impl ViewSink {
         let started = *self.started.get_or_insert(result.arrived);
         view.at(timeline::FRAME, self.frames);
         view.at_seconds(timeline::STREAM_TIME, result.arrived.saturating_duration_since(started).as_secs_f64());
+        let pictured = self.frames % i64::from(self.every) == 0;
         self.frames += 1;
         let max_mm = predictor.file.sensor.max_depth_mm as f32;
         let depth = result.depth;
-        view.rgb(entity::FRAME, result.image)?;
-        view.mask(entity::CONTACT, depth.size_px, result.contact)?;
-        view.depth(entity::DEPTH, [depth.size_px; 2], &depth.depth_mm, max_mm)?;
         // A point's depth is the dome's radius less its distance from the centre.
         let radius_mm = predictor.file.sensor.radius_mm as f32;
         let points = &result.cloud.points_mm;
-        let colours: Vec<[u8; 3]> = points.iter().map(|p| depth_colour(radius_mm - norm(*p), max_mm)).collect();
-        view.points_mm(entity::CLOUD, points, Some(&colours))?;
+        if pictured {
+            view.rgb(entity::FRAME, result.image)?;
+            view.mask(entity::CONTACT, depth.size_px, result.contact)?;
+            view.depth(entity::DEPTH, [depth.size_px; 2], &depth.depth_mm, max_mm)?;
+            let colours: Vec<[u8; 3]> = points.iter().map(|p| depth_colour(radius_mm - norm(*p), max_mm)).collect();
+            view.points_mm(entity::CLOUD, points, Some(&colours))?;
+        }
         if let Some(force) = result.force {
-            view.pressure(entity::PRESSURE, &force.pressure)?;
+            if pictured {
+                view.pressure(entity::PRESSURE, &force.pressure)?;
+            }
             let f = force.wrench.force_n;
             for (name, value) in
                 entity::FORCE_N.iter().zip(f).chain(entity::TORQUE_NMM.iter().zip(force.wrench.torque_nmm))
