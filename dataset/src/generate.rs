@@ -9,7 +9,7 @@ use sensor::{DepthMap, PressureMap, Sensor};
 
 use formats::dataset::{
     DATASET_FORMAT_VERSION, DepthStats, GeneratorFile, GeneratorParams, LIFTED_Z_TRAVEL_MM, Manifest, SampleRecord,
-    SplitSummary, sample_name,
+    SplitSummary, depth_u8_file, sample_name,
 };
 use formats::fs::{write_atomic, write_atomic_unsynced};
 use formats::{SplitMix64, write_json};
@@ -151,19 +151,12 @@ impl Generator<'_> {
         let start = Instant::now();
         let _claim = self.prepare_folder()?;
         let out = &self.out;
-        let shard = self.params.shard;
-        let mine = move |id: &u32| formats::Shard::includes(shard, *id);
+        let ids: Vec<u32> = formats::Shard::ids(self.params.shard, self.params.count).collect();
         let done = resumable::finished(
             "samples",
-            (0..self.params.count).filter(mine),
+            ids.iter().copied(),
             |id| out.join(format!("samples/{}.json", sample_name(id))),
-            |r: &SampleRecord| {
-                let mut files: Vec<PathBuf> = r.files().map(|f| out.join(f)).collect();
-                if self.params.depth_u8 {
-                    files.push(out.join(format!("depth_u8/{}.png", sample_name(r.id))));
-                }
-                files
-            },
+            |r: &SampleRecord| r.files().chain(&self.params.unrecorded_files(r.id)).map(|f| out.join(f)).collect(),
             |id, r: &SampleRecord| {
                 r.id == id
                     && r.image.is_some() == self.renderer.is_some()
@@ -172,7 +165,7 @@ impl Generator<'_> {
             },
         )?;
         let resumed = done.len();
-        let todo: Vec<u32> = (0..self.params.count).filter(|id| mine(id) && !done.contains_key(id)).collect();
+        let todo: Vec<u32> = ids.into_iter().filter(|id| !done.contains_key(id)).collect();
         let rays = RayBundle::new(self.sensor);
         let mask = self.sensor.valid_mask();
         let dome = self.params.force_labels.then(|| Dome::new(self.sensor, &rays));
@@ -209,7 +202,7 @@ impl Generator<'_> {
         write_atomic_unsynced(&self.out.join(&depth_rel), &depth.to_png_um())?;
         if self.params.depth_u8 {
             let bytes = depth.to_png_u8(self.sensor.max_depth_mm as f32);
-            write_atomic_unsynced(&self.out.join(format!("depth_u8/{name}.png")), &bytes)?;
+            write_atomic_unsynced(&self.out.join(depth_u8_file(id)), &bytes)?;
         }
         let (pressure, wrench, contact) = match dome {
             Some(dome) => {

@@ -80,16 +80,16 @@ impl Made {
     /// may skip bad rows).
     fn expected_ids(&self) -> Option<Vec<u32>> {
         match self {
-            Made::Generated(f) => Some((0..f.params.count).filter(|&id| Shard::includes(f.params.shard, id)).collect()),
+            Made::Generated(f) => Some(Shard::ids(f.params.shard, f.params.count).collect()),
             Made::Labelled(_) => None,
         }
     }
 
-    /// Files a sample has beside its record's.
-    fn extra_files(&self, id: u32) -> Vec<String> {
+    /// Files a sample has beside those its record names.
+    fn unrecorded_files(&self, id: u32) -> Vec<String> {
         match self {
-            Made::Generated(f) if f.params.depth_u8 => vec![format!("depth_u8/{}.png", sample_name(id))],
-            _ => Vec::new(),
+            Made::Generated(f) => f.params.unrecorded_files(id),
+            Made::Labelled(_) => Vec::new(),
         }
     }
 }
@@ -211,7 +211,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<MergeReport> {
             s.manifest.samples.iter().flat_map(|r| {
                 let mut files: Vec<String> = r.files().cloned().collect();
                 files.push(format!("samples/{}.json", sample_name(r.id)));
-                files.extend(whole.extra_files(r.id));
+                files.extend(whole.unrecorded_files(r.id));
                 files.into_iter().map(|f| (s.dir.clone(), f))
             })
         })

@@ -497,6 +497,20 @@ pub fn sample_name(id: u32) -> String {
     format!("{id:06}")
 }
 
+/// Where sample `id`'s 8-bit depth (`--depth-u8`) lies in a dataset folder: a file its record
+/// does not name.
+pub fn depth_u8_file(id: u32) -> String {
+    format!("depth_u8/{}.png", sample_name(id))
+}
+
+impl GeneratorParams {
+    /// Sample `id`'s files beside those its record names ([`SampleRecord::files`]), relative to
+    /// the dataset folder.
+    pub fn unrecorded_files(&self, id: u32) -> Vec<String> {
+        if self.depth_u8 { vec![depth_u8_file(id)] } else { Vec::new() }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

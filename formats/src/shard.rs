@@ -26,6 +26,11 @@ impl Shard {
     pub fn includes(shard: Option<Shard>, id: u32) -> bool {
         shard.is_none_or(|s| s.holds(id))
     }
+
+    /// The ids of `0..count` that `shard` (or no shard: the whole job) holds, in order.
+    pub fn ids(shard: Option<Shard>, count: u32) -> impl Iterator<Item = u32> {
+        (0..count).filter(move |&id| Shard::includes(shard, id))
+    }
 }
 
 impl fmt::Display for Shard {
@@ -63,6 +68,8 @@ mod tests {
             assert_eq!(shards.iter().filter(|s| s.holds(id)).count(), 1);
         }
         assert!(Shard::includes(None, 7) && !Shard::includes(Some(shards[0]), 7));
+        assert_eq!(Shard::ids(Some(shards[1]), 8).collect::<Vec<_>>(), [1, 4, 7]);
+        assert_eq!(Shard::ids(None, 3).collect::<Vec<_>>(), [0, 1, 2]);
         assert_eq!(shards[2].to_string(), "2/3");
         assert_eq!(" 1 / 4 ".parse::<Shard>().unwrap(), Shard { index: 1, count: 4 });
     }
