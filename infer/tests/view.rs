@@ -118,7 +118,8 @@ fn a_recorded_stream_reads_back_as_its_files_say() {
     }
     assert_eq!(pressed_frames, 2, "the gate opened for the pressed frames alone");
 
-    // `--view-every 2`: the pictures of frames 0 and 2 only, the time series of all four.
+    // `--view-every 2`: the pictures of frames 0 and 2 only, the time series of all four; with
+    // `--view-jpeg-quality` the frames as JPEG, which decode to the frame within JPEG's error.
     let sparse = tmp.path().join("sparse.rrd");
     let o = infer(&[
         "--bundle",
@@ -130,16 +131,29 @@ fn a_recorded_stream_reads_back_as_its_files_say() {
         sparse.to_str().unwrap(),
         "--view-every",
         "2",
+        "--view-jpeg-quality",
+        "90",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let rec = view::read_back(&sparse).unwrap();
-    assert_eq!(rec.colour_images(entity::FRAME, t).iter().map(|i| i.0).collect::<Vec<_>>(), [0, 2]);
+    assert!(rec.colour_images(entity::FRAME, t).is_empty(), "raw frames beside the JPEG ones");
+    let jpegs = rec.encoded_images(entity::FRAME, t);
+    assert_eq!(jpegs.iter().map(|i| i.0).collect::<Vec<_>>(), [0, 2]);
+    for (k, (size, rgb)) in &jpegs {
+        assert_eq!(*size, [n, n]);
+        let frame = frames[*k as usize].as_raw();
+        let mean_error =
+            rgb.iter().zip(frame).map(|(&a, &b)| f64::from(a.abs_diff(b))).sum::<f64>() / frame.len() as f64;
+        assert!(mean_error < 3.0, "frame {k}: the JPEG is {mean_error:.2} grey levels off on average");
+    }
     assert_eq!(rec.depth_images(entity::DEPTH, t).iter().map(|i| i.0).collect::<Vec<_>>(), [0, 2]);
     assert_eq!(rec.points(entity::CLOUD, t).iter().map(|i| i.0).collect::<Vec<_>>(), [0, 2]);
     assert_eq!(rec.scalars(entity::NETWORK_RAN, t).len(), frames.len());
     assert_eq!(rec.scalars(entity::FORCE_N[2], t).len(), frames.len());
     let o = infer(&["--bundle", bundle.to_str().unwrap(), "--source", &pattern, "--view-every", "0"]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--view-every"));
+    let o = infer(&["--bundle", bundle.to_str().unwrap(), "--source", &pattern, "--view-jpeg-quality", "0"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--view-jpeg-quality"));
 
     // A recording that cannot be written stops the stream before it starts, naming the file;
     // the view's options need each other's absence.

@@ -6,7 +6,19 @@ import json
 import os
 from pathlib import Path
 
+import importlib
+
 import pytest
+
+
+def peer(module: str):
+    """A peer library a test compares with or runs under (torch, onnxruntime): skipped where it is
+    not installed, unless DENSETACT_REQUIRE names it (CI installs them and names them, so that a
+    missing one fails there instead of passing as a skip)."""
+    required = {m.strip() for m in os.environ.get("DENSETACT_REQUIRE", "").split(",") if m.strip()}
+    if module in required:
+        return importlib.import_module(module)
+    return pytest.importorskip(module)
 
 
 @pytest.fixture(scope="session")

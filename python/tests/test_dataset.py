@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import densetact
+from conftest import peer
 
 
 def test_samples_are_images_depths_and_records(root):
@@ -61,7 +62,7 @@ def test_a_missing_file_is_named(root, tmp_path):
 
 
 def test_a_dataloader_trains_a_few_pytorch_steps(root):
-    torch = pytest.importorskip("torch")
+    torch = peer("torch")
     from torch.utils.data import DataLoader
 
     ds = densetact.Dataset(root / "data", "train")

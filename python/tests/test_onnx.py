@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 import densetact
+from conftest import peer
 
-ort = pytest.importorskip("onnxruntime")
+ort = peer("onnxruntime")
 
 
 def test_onnx_runtime_gives_infer_predicts_depth(root, bundle, cases):

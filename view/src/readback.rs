@@ -8,7 +8,10 @@ use re_chunk::Chunk;
 use re_log_encoding::rrd::DecoderApp;
 use re_log_types::{LogMsg, TimelineName};
 use rerun::ComponentDescriptor;
-use rerun::components::{ImageBuffer, ImageFormat, Position3D, Scalar, Vector3D};
+use rerun::components::{Blob, ImageBuffer, ImageFormat, Position3D, Scalar, Vector3D};
+use rerun::datatypes::ChannelDatatype;
+
+use crate::record::UM_PER_MM;
 
 use crate::ViewError;
 
@@ -82,7 +85,8 @@ impl Recording {
             .collect()
     }
 
-    /// The depth images logged to `entity`: size (px) and values (f32, the view's unit: mm).
+    /// The depth images logged to `entity`: size (px) and values (mm), from float32 or from
+    /// 16-bit micrometres ([`crate::View::depth_um`]).
     pub fn depth_images(&self, entity: &str, timeline: &str) -> Vec<Logged<([u32; 2], Vec<f32>)>> {
         let images = self.images(
             entity,
@@ -90,7 +94,26 @@ impl Recording {
             rerun::DepthImage::descriptor_buffer(),
             rerun::DepthImage::descriptor_format(),
         );
-        images.into_iter().map(|(t, (f, bytes))| (t, ([f.width, f.height], f32s(&bytes)))).collect()
+        let values = |f: &ImageFormat, bytes: &[u8]| match f.datatype() {
+            ChannelDatatype::U16 => bytes
+                .chunks_exact(2)
+                .map(|b| (f64::from(u16::from_le_bytes([b[0], b[1]])) / UM_PER_MM) as f32)
+                .collect(),
+            _ => f32s(bytes),
+        };
+        images.into_iter().map(|(t, (f, bytes))| (t, ([f.width, f.height], values(&f, &bytes)))).collect()
+    }
+
+    /// The encoded (JPEG, PNG) images logged to `entity`, decoded: size (px) and RGB bytes.
+    pub fn encoded_images(&self, entity: &str, timeline: &str) -> Vec<Logged<([u32; 2], Vec<u8>)>> {
+        let blobs = self.column::<Blob>(entity, timeline, rerun::EncodedImage::descriptor_blob());
+        blobs
+            .into_iter()
+            .filter_map(|(t, b)| {
+                let image = image::load_from_memory(&b.first()?.0.0).ok()?.to_rgb8();
+                Some((t, ([image.width(), image.height()], image.into_raw())))
+            })
+            .collect()
     }
 
     /// The colour (or single-channel) images logged to `entity`: size (px) and raw bytes.

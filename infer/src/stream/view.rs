@@ -25,15 +25,26 @@ pub struct ViewSink {
     arrow_shown: bool,
     /// The images, cloud and pressure of every `every`-th frame only.
     every: u32,
+    /// The frames as JPEG of this quality, else raw.
+    jpeg_quality: Option<u8>,
 }
 
 impl ViewSink {
     /// Opens the view on `target`, with the images, cloud and pressure of every `every`-th
-    /// frame (the first, then each `every` on; 1: all) and the time series of all.
-    pub fn open(target: &Target, every: u32) -> Result<Self, SinkError> {
+    /// frame (the first, then each `every` on; 1: all) and the time series of all; the frames
+    /// as JPEG of `jpeg_quality` where one is given, else raw.
+    pub fn open(target: &Target, every: u32, jpeg_quality: Option<u8>) -> Result<Self, SinkError> {
         let view = View::open("densetact_stream", target)?;
         let every = every.max(1);
-        Ok(ViewSink { view, frames: 0, started: None, recent: VecDeque::new(), arrow_shown: false, every })
+        Ok(ViewSink {
+            view,
+            frames: 0,
+            started: None,
+            recent: VecDeque::new(),
+            arrow_shown: false,
+            every,
+            jpeg_quality,
+        })
     }
 
     /// Sends what is pending; a recording gets its name. Returns the recording's path.
@@ -54,9 +65,12 @@ impl ViewSink {
         let radius_mm = predictor.file.sensor.radius_mm as f32;
         let points = &result.cloud.points_mm;
         if pictured {
-            view.rgb(entity::FRAME, result.image)?;
+            match self.jpeg_quality {
+                Some(quality) => view.rgb_jpeg(entity::FRAME, result.image, quality)?,
+                None => view.rgb(entity::FRAME, result.image)?,
+            }
             view.mask(entity::CONTACT, depth.size_px, result.contact)?;
-            view.depth(entity::DEPTH, [depth.size_px; 2], &depth.depth_mm, max_mm)?;
+            view.depth_um(entity::DEPTH, [depth.size_px; 2], &depth.depth_mm, max_mm)?;
             let colours: Vec<[u8; 3]> = points.iter().map(|p| depth_colour(radius_mm - norm(*p), max_mm)).collect();
             view.points_mm(entity::CLOUD, points, Some(&colours))?;
         }
