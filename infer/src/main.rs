@@ -409,8 +409,10 @@ fn stream(args: StreamArgs) -> Result<()> {
     let source = stream_source(&source, fps, poll_ms, idle_exit_s, &predictor.file.sensor)?;
     let mut folder = out.as_deref().map(FolderSink::new).transpose()?;
     #[cfg(feature = "view")]
-    let mut view =
-        view.as_ref().map(|t| infer::stream::ViewSink::open(t, view_every, view_jpeg_quality)).transpose()?;
+    let mut view = view
+        .as_ref()
+        .map(|t| infer::stream::ViewSink::open(t, view_every, view_jpeg_quality, predictor.has_force()))
+        .transpose()?;
     // Without the feature, `target` refused any view already.
     #[cfg(not(feature = "view"))]
     let _ = (view, view_every, view_jpeg_quality);

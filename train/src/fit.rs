@@ -288,7 +288,7 @@ impl<'a> Run<'a> {
         let loss = config.loss(&train.scale);
         let batcher = DepthBatcher::for_data(&train);
         let parallel = DataParallel::new(&options.devices, batcher.clone(), loss)?;
-        let view = options.view.as_ref().map(RunView::open).transpose()?;
+        let view = options.view.as_ref().map(|target| RunView::open(target, &val)).transpose()?;
         let train = Arc::new(train);
         Ok(Run { dir, config, options, train, val, batcher, parallel, net, optim, state, bad_run: 0, view })
     }

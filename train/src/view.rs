@@ -32,8 +32,11 @@ pub enum RunView {}
 
 #[cfg(feature = "view")]
 impl RunView {
-    pub fn open(target: &view::Target) -> Result<Self> {
-        Ok(RunView { view: view::View::open("densetact_training", target)? })
+    /// Opens the view on `target`, laid out for the losses and `val`'s samples shown.
+    pub fn open(target: &view::Target, val: &DepthDataset) -> Result<Self> {
+        let view = view::View::open("densetact_training", target)?;
+        view.lay_out(&view::training_columns(val.len().min(HELD_OUT_SHOWN)))?;
+        Ok(RunView { view })
     }
 
     /// A step's loss (the mean over its batch) and learning rate.

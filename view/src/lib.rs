@@ -10,11 +10,15 @@
 
 mod args;
 #[cfg(feature = "rerun")]
+mod layout;
+#[cfg(feature = "rerun")]
 mod readback;
 #[cfg(feature = "rerun")]
 mod record;
 
 pub use args::{Target, ViewArgs};
+#[cfg(feature = "rerun")]
+pub use layout::{Panel, stream_columns, training_columns};
 #[cfg(feature = "rerun")]
 pub use readback::{Recording, read_back};
 #[cfg(feature = "rerun")]

@@ -13,24 +13,29 @@ use rerun::datatypes::ChannelDatatype;
 
 use crate::record::UM_PER_MM;
 
-use crate::ViewError;
+use crate::{Panel, ViewError};
+use rerun::blueprint::components::{ViewClass, ViewOrigin};
+use rerun::components::Name;
+use rerun::external::re_sdk_types::blueprint::archetypes::ViewBlueprint;
 
-/// The data of a `.rrd` file, chunk by chunk.
+/// The data of a `.rrd` file, chunk by chunk, and the layout it came with.
 pub struct Recording {
     chunks: Vec<Chunk>,
+    blueprint: Vec<Chunk>,
 }
 
 /// Reads the recording at `path`.
 pub fn read_back(path: &Path) -> Result<Recording, ViewError> {
     let bad = |detail: String| ViewError::Read { path: path.to_path_buf(), detail };
     let file = std::fs::File::open(path).map_err(|source| ViewError::Io { path: path.to_path_buf(), source })?;
-    let mut chunks = Vec::new();
+    let (mut chunks, mut blueprint) = (Vec::new(), Vec::new());
     for msg in DecoderApp::decode_lazy(BufReader::new(file)) {
-        if let LogMsg::ArrowMsg(_, arrow) = msg.map_err(|e| bad(e.to_string()))? {
-            chunks.push(Chunk::from_arrow_msg(&arrow).map_err(|e| bad(e.to_string()))?);
+        if let LogMsg::ArrowMsg(store, arrow) = msg.map_err(|e| bad(e.to_string()))? {
+            let chunk = Chunk::from_arrow_msg(&arrow).map_err(|e| bad(e.to_string()))?;
+            if store.is_blueprint() { blueprint.push(chunk) } else { chunks.push(chunk) }
         }
     }
-    Ok(Recording { chunks })
+    Ok(Recording { chunks, blueprint })
 }
 
 /// One logged value: where it sits on the timeline asked for, and the value.
@@ -40,6 +45,33 @@ impl Recording {
     /// The entity paths that hold data (`/camera/frame` and the like, as Rerun writes them).
     pub fn entities(&self) -> BTreeSet<String> {
         self.chunks.iter().map(|c| c.entity_path().to_string()).collect()
+    }
+
+    /// The panels of the layout the recording came with (in no particular order).
+    pub fn panels(&self) -> Vec<Panel> {
+        let descriptor = |d: ComponentDescriptor| d.component;
+        let (class, name, origin) = (
+            descriptor(ViewBlueprint::descriptor_class_identifier()),
+            descriptor(ViewBlueprint::descriptor_display_name()),
+            descriptor(ViewBlueprint::descriptor_space_origin()),
+        );
+        let mut panels = Vec::new();
+        for chunk in &self.blueprint {
+            let classes = chunk.iter_component::<ViewClass>(class);
+            let names = chunk.iter_component::<Name>(name);
+            let origins = chunk.iter_component::<ViewOrigin>(origin);
+            for ((c, n), o) in classes.zip(names).zip(origins) {
+                let (Some(c), Some(n), Some(o)) = (c.first(), n.first(), o.first()) else { continue };
+                let class = match c.0.as_str() {
+                    "2D" => "2D",
+                    "3D" => "3D",
+                    "TimeSeries" => "TimeSeries",
+                    _ => "other",
+                };
+                panels.push(Panel { class, name: n.as_str().to_string(), origin: o.0.to_string() });
+            }
+        }
+        panels
     }
 
     /// The batches of `component` logged to `entity`, by their index on `timeline`.

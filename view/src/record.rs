@@ -9,6 +9,8 @@ use rerun::{RecordingStream, RecordingStreamBuilder};
 use sensor::PressureMap;
 
 use crate::Target;
+use crate::layout::{Panel, blueprint};
+use rerun::blueprint::BlueprintActivation;
 
 /// Why a view failed.
 #[derive(Debug, thiserror::Error)]
@@ -47,6 +49,14 @@ impl View {
             }
         };
         Ok(View { rec, saving })
+    }
+
+    /// Lays the viewer out in `columns` of panels ([`crate::stream_columns`],
+    /// [`crate::training_columns`]): sent with the data, so a recording opens laid out too.
+    pub fn lay_out(&self, columns: &[Vec<Panel>]) -> Result<(), ViewError> {
+        blueprint(columns)
+            .send(&self.rec, BlueprintActivation { make_active: true, make_default: true })
+            .map_err(|e| ViewError::Log { entity: "the layout".into(), detail: e.to_string() })
     }
 
     /// Where the following logs sit on `timeline` (a sequence: frame or step number).

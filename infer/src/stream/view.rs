@@ -32,9 +32,11 @@ pub struct ViewSink {
 impl ViewSink {
     /// Opens the view on `target`, with the images, cloud and pressure of every `every`-th
     /// frame (the first, then each `every` on; 1: all) and the time series of all; the frames
-    /// as JPEG of `jpeg_quality` where one is given, else raw.
-    pub fn open(target: &Target, every: u32, jpeg_quality: Option<u8>) -> Result<Self, SinkError> {
+    /// as JPEG of `jpeg_quality` where one is given, else raw; laid out with a pressure panel
+    /// where the bundle has a force output (`has_force`).
+    pub fn open(target: &Target, every: u32, jpeg_quality: Option<u8>, has_force: bool) -> Result<Self, SinkError> {
         let view = View::open("densetact_stream", target)?;
+        view.lay_out(&view::stream_columns(has_force))?;
         let every = every.max(1);
         Ok(ViewSink {
             view,
