@@ -280,8 +280,8 @@ struct StreamArgs {
     /// frame only, from the first; the time series and the force of every frame.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     view_every: u32,
-    /// With a view: the frames as JPEG of this quality (1..100) instead of raw RGB (at 90 about
-    /// a twentieth of the bytes); the depth is logged as 16-bit micrometres either way.
+    /// With a view: the frames as JPEG of this quality (1..100) instead of raw RGB, for smaller
+    /// recordings at the cost of encoding each frame; the depth is 16-bit micrometres either way.
     #[arg(long, value_name = "QUALITY", value_parser = clap::value_parser!(u8).range(1..=100))]
     view_jpeg_quality: Option<u8>,
 }

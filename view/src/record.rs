@@ -78,8 +78,8 @@ impl View {
         self.log(entity, &rerun::Image::from_rgb24(image.as_raw().clone(), [image.width(), image.height()]))
     }
 
-    /// An RGB image as JPEG of `quality` (1..=100): a twentieth of the raw pixels' bytes at 90,
-    /// for views that log every frame of a camera.
+    /// An RGB image as JPEG of `quality` (1..=100), for views that log every frame of a camera:
+    /// far fewer bytes than the raw pixels, for the time spent encoding.
     pub fn rgb_jpeg(&self, entity: &str, image: &RgbImage, quality: u8) -> Result<(), ViewError> {
         let jpeg = sensor::frame::encode_jpeg_rgb(image, quality);
         self.log(entity, &rerun::EncodedImage::new(jpeg).with_media_type(rerun::MediaType::jpeg()))
