@@ -75,11 +75,7 @@ fn a_recorded_stream_reads_back_as_its_files_say() {
         assert!(entities.iter().any(|x| x == e), "{e} missing from {entities:?}");
     }
     // The layout came with the data: the panels of a force bundle's stream.
-    let mut panels = rec.panels();
-    let mut want: Vec<view::Panel> = view::stream_columns(true).into_iter().flatten().collect();
-    panels.sort_by(|a, b| a.name.cmp(&b.name));
-    want.sort_by(|a, b| a.name.cmp(&b.name));
-    assert_eq!(panels, want);
+    assert_eq!(rec.panels(), view::panels_by_name(&view::stream_columns(true)));
     let rows = frames_csv(&out.join("frames.csv"));
     assert_eq!(rows.len(), frames.len());
     let t = timeline::FRAME;

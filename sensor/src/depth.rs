@@ -22,6 +22,20 @@ pub const CONTACT_THRESHOLD_MM: f32 = 0.02;
 /// One step of the 16-bit PNG encoding: a micrometre (so 65.535 mm is the largest depth).
 pub const PNG_UM_PER_STEP: f32 = 1.0;
 
+/// Steps of the 16-bit depth encoding per millimetre.
+pub const DEPTH_STEPS_PER_MM: f32 = 1000.0 / PNG_UM_PER_STEP;
+
+/// Depth (mm) as a step of the 16-bit encoding (rounded, clamped to 0..65535): the depth PNG's,
+/// and the live view's.
+pub fn depth_step(depth_mm: f32) -> u16 {
+    ((depth_mm * DEPTH_STEPS_PER_MM).clamp(0.0, 65535.0) + 0.5) as u16
+}
+
+/// The depth (mm) a step of the 16-bit encoding stands for.
+pub fn step_depth_mm(step: u16) -> f32 {
+    step as f32 * PNG_UM_PER_STEP / 1000.0
+}
+
 impl DepthMap {
     pub fn zeros(size_px: u32) -> Self {
         DepthMap { size_px, depth_mm: vec![0.0; (size_px as usize).pow(2)] }
@@ -38,8 +52,7 @@ impl DepthMap {
 
     /// Encodes as 16-bit grey PNG in micrometres (rounded): lossless at 0.5 um.
     pub fn to_png_um(&self) -> Vec<u8> {
-        let px: Vec<u16> =
-            self.depth_mm.iter().map(|&d| ((d * 1000.0 / PNG_UM_PER_STEP).clamp(0.0, 65535.0) + 0.5) as u16).collect();
+        let px: Vec<u16> = self.depth_mm.iter().map(|&d| depth_step(d)).collect();
         encode_png(self.size_px, px)
     }
 
@@ -66,7 +79,7 @@ impl DepthMap {
     /// Decodes a 16-bit micrometre PNG's bytes; `path` names it in errors.
     pub fn decode_png_um(path: &Path, bytes: &[u8]) -> Result<Self, SensorError> {
         let (size_px, raw) = decode_square_u16(path, bytes, "depth")?;
-        let depth_mm = raw.into_iter().map(|v| v as f32 * PNG_UM_PER_STEP / 1000.0).collect();
+        let depth_mm = raw.into_iter().map(step_depth_mm).collect();
         Ok(DepthMap { size_px, depth_mm })
     }
 }

@@ -22,7 +22,10 @@ use std::path::{Path, PathBuf};
 
 pub use correspondence::{Correspondence, RadialMap};
 pub use decode::TRAILING_SLACK_BYTES;
-pub use depth::{CONTACT_THRESHOLD_MM, DepthMap, PNG_KPA_PER_STEP, PNG_UM_PER_STEP, PressureMap, npy_f32};
+pub use depth::{
+    CONTACT_THRESHOLD_MM, DEPTH_STEPS_PER_MM, DepthMap, PNG_KPA_PER_STEP, PNG_UM_PER_STEP, PressureMap, depth_step,
+    npy_f32, step_depth_mm,
+};
 pub use force::{DomeAreas, Wrench};
 pub use sensor::{DEFAULT_FOCAL_PX_PER_RAD, MAX_FRAME_SIDE_PX, PixelRay, SENSOR_FORMAT_VERSION, Sensor};
 

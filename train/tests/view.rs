@@ -61,11 +61,7 @@ fn a_recorded_run_reads_back_as_its_metrics_and_its_network_say() {
     let shown = val.len().min(3);
     assert!(shown > 0);
     // The layout came with the data: the series, then the held-out samples' panels.
-    let mut panels = rec.panels();
-    let mut want: Vec<view::Panel> = view::training_columns(shown).into_iter().flatten().collect();
-    panels.sort_by(|a, b| a.name.cmp(&b.name));
-    want.sort_by(|a, b| a.name.cmp(&b.name));
-    assert_eq!(panels, want);
+    assert_eq!(rec.panels(), view::panels_by_name(&view::training_columns(shown)));
     let items: Vec<_> = (0..shown).map(|i| val.load(i, None).unwrap()).collect();
     let batch = train::data::DepthBatcher::for_data(&val).batch(items.clone(), &device);
     let [_, _, h, w] = batch.depths.dims();

@@ -77,6 +77,13 @@ pub fn training_columns(held_out: usize) -> Vec<Vec<Panel>> {
     columns
 }
 
+/// The panels of `columns` by name: a layout as [`crate::Recording::panels`] reads one back.
+pub fn panels_by_name(columns: &[Vec<Panel>]) -> Vec<Panel> {
+    let mut panels: Vec<Panel> = columns.iter().flatten().cloned().collect();
+    panels.sort_by(|a, b| a.name.cmp(&b.name));
+    panels
+}
+
 /// The blueprint of `columns`: a row of columns, each a stack of panels; the viewer adds no
 /// panels of its own.
 pub(crate) fn blueprint(columns: &[Vec<Panel>]) -> Blueprint {

@@ -18,7 +18,7 @@ mod record;
 
 pub use args::{Target, ViewArgs};
 #[cfg(feature = "rerun")]
-pub use layout::{Panel, stream_columns, training_columns};
+pub use layout::{Panel, panels_by_name, stream_columns, training_columns};
 #[cfg(feature = "rerun")]
 pub use readback::{Recording, read_back};
 #[cfg(feature = "rerun")]

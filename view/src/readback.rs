@@ -8,15 +8,12 @@ use re_chunk::Chunk;
 use re_log_encoding::rrd::DecoderApp;
 use re_log_types::{LogMsg, TimelineName};
 use rerun::ComponentDescriptor;
-use rerun::components::{Blob, ImageBuffer, ImageFormat, Position3D, Scalar, Vector3D};
+use rerun::blueprint::components::{ViewClass, ViewOrigin};
+use rerun::components::{Blob, ImageBuffer, ImageFormat, Name, Position3D, Scalar, Vector3D};
 use rerun::datatypes::ChannelDatatype;
-
-use crate::record::UM_PER_MM;
+use rerun::external::re_sdk_types::blueprint::archetypes::ViewBlueprint;
 
 use crate::{Panel, ViewError};
-use rerun::blueprint::components::{ViewClass, ViewOrigin};
-use rerun::components::Name;
-use rerun::external::re_sdk_types::blueprint::archetypes::ViewBlueprint;
 
 /// The data of a `.rrd` file, chunk by chunk, and the layout it came with.
 pub struct Recording {
@@ -47,7 +44,8 @@ impl Recording {
         self.chunks.iter().map(|c| c.entity_path().to_string()).collect()
     }
 
-    /// The panels of the layout the recording came with (in no particular order).
+    /// The panels of the layout the recording came with, by name (as [`crate::panels_by_name`]
+    /// lists a layout's).
     pub fn panels(&self) -> Vec<Panel> {
         let descriptor = |d: ComponentDescriptor| d.component;
         let (class, name, origin) = (
@@ -71,6 +69,7 @@ impl Recording {
                 panels.push(Panel { class, name: n.as_str().to_string(), origin: o.0.to_string() });
             }
         }
+        panels.sort_by(|a, b| a.name.cmp(&b.name));
         panels
     }
 
@@ -127,10 +126,9 @@ impl Recording {
             rerun::DepthImage::descriptor_format(),
         );
         let values = |f: &ImageFormat, bytes: &[u8]| match f.datatype() {
-            ChannelDatatype::U16 => bytes
-                .chunks_exact(2)
-                .map(|b| (f64::from(u16::from_le_bytes([b[0], b[1]])) / UM_PER_MM) as f32)
-                .collect(),
+            ChannelDatatype::U16 => {
+                bytes.chunks_exact(2).map(|b| sensor::step_depth_mm(u16::from_le_bytes([b[0], b[1]]))).collect()
+            }
             _ => f32s(bytes),
         };
         images.into_iter().map(|(t, (f, bytes))| (t, ([f.width, f.height], values(&f, &bytes)))).collect()

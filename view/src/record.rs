@@ -94,13 +94,13 @@ impl View {
         self.log(entity, &coloured(image, max_mm))
     }
 
-    /// [`View::depth`] in half the bytes: whole micrometres as 16 bits (as a dataset's depth PNGs
-    /// hold them), for views that log every frame.
+    /// [`View::depth`] in half the bytes: the 16-bit micrometre steps a dataset's depth PNGs hold
+    /// (`sensor::depth_step`), for views that log every frame.
     pub fn depth_um(&self, entity: &str, size_px: [u32; 2], depth_mm: &[f32], max_mm: f32) -> Result<(), ViewError> {
-        let bytes: Vec<u8> = depth_mm.iter().flat_map(|&d| micrometres(d).to_le_bytes()).collect();
+        let bytes: Vec<u8> = depth_mm.iter().flat_map(|&d| sensor::depth_step(d).to_le_bytes()).collect();
         let image = rerun::DepthImage::from_data_type_and_bytes(bytes, size_px, ChannelDatatype::U16)
-            .with_meter(UM_PER_MM as f32);
-        self.log(entity, &coloured(image, max_mm * UM_PER_MM as f32))
+            .with_meter(sensor::DEPTH_STEPS_PER_MM);
+        self.log(entity, &coloured(image, max_mm * sensor::DEPTH_STEPS_PER_MM))
     }
 
     /// A pressure map (kPa, single-channel float: the viewer shows its values on hover).
@@ -171,14 +171,6 @@ pub(crate) fn partial_path(path: &Path) -> PathBuf {
 /// A depth image in false colour from 0 to `max` (in the image's own units).
 fn coloured(image: rerun::DepthImage, max: f32) -> rerun::DepthImage {
     image.with_colormap(Colormap::Turbo).with_depth_range([0.0, f64::from(max.max(f32::MIN_POSITIVE))])
-}
-
-/// Units of [`View::depth_um`]'s 16-bit depth per millimetre.
-pub(crate) const UM_PER_MM: f64 = 1000.0;
-
-/// Depth in whole micrometres, clamped to 16 bits (0 to 65.535 mm: the dome is 25 mm deep).
-fn micrometres(depth_mm: f32) -> u16 {
-    (f64::from(depth_mm) * UM_PER_MM).round().clamp(0.0, f64::from(u16::MAX)) as u16
 }
 
 /// Little-endian bytes of `values` (Rerun's buffers are byte blobs).
