@@ -16,8 +16,28 @@ fn target_dir() -> PathBuf {
     exe.parent().and_then(Path::parent).unwrap().to_path_buf()
 }
 
-/// The package as pip would install it: the Python sources beside the extension this build made.
+/// The package the tests import, in `site`: the wheel `DENSETACT_WHEEL` names, installed by pip
+/// as a user installs it (CI builds it with maturin), or else the package as pip would lay it
+/// out from this build: the Python sources beside the extension module the build made.
 fn install_package(target: &Path, site: &Path) {
+    if let Some(wheel) = std::env::var_os("DENSETACT_WHEEL") {
+        let wheel = PathBuf::from(wheel);
+        assert!(
+            wheel.is_absolute() && wheel.is_file(),
+            "DENSETACT_WHEEL={}: not a wheel file's absolute path (the tests run in python/)",
+            wheel.display()
+        );
+        let out = Command::new(python())
+            .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check", "--no-deps", "--no-index"])
+            .arg("--target")
+            .arg(site)
+            .arg(&wheel)
+            .output()
+            .expect("python3 runs");
+        let report = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        assert!(out.status.success(), "pip install {}:\n{report}", wheel.display());
+        return;
+    }
     // `cargo test` leaves the extension among the dependencies (`deps/`), a build of the crate
     // itself beside them; the newer is this build's.
     let names = ["lib_densetact.so", "lib_densetact.dylib"];
@@ -39,6 +59,11 @@ fn install_package(target: &Path, site: &Path) {
         }
     }
     std::fs::copy(ext, package.join("_densetact.abi3.so")).unwrap();
+}
+
+/// The interpreter the tests run under (`PYTHON`, or `python3`).
+fn python() -> String {
+    std::env::var("PYTHON").unwrap_or_else(|_| "python3".into())
 }
 
 /// A simulated capture session of `unit`: full camera frames as PNG, the log, the reference
@@ -107,8 +132,23 @@ fn the_python_package_passes_its_tests() {
     }
     std::fs::write(root.join("cases.json"), serde_json::to_vec(&cases).unwrap()).unwrap();
 
+    // The package imported is the one installed above (the wheel's, under DENSETACT_WHEEL).
+    let out = Command::new(python())
+        .args(["-c", "import densetact._densetact as m; print(m.__file__)"])
+        .current_dir(root)
+        .env("PYTHONPATH", root.join("site"))
+        .env("PYTHONDONTWRITEBYTECODE", "1")
+        .output()
+        .expect("python3 runs");
+    let imported = String::from_utf8_lossy(&out.stdout).trim().to_string();
+    assert!(
+        out.status.success() && Path::new(&imported).starts_with(root.join("site")),
+        "densetact imports from {imported:?}, not the installed package: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
     let tests = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests");
-    let out = Command::new(std::env::var("PYTHON").unwrap_or_else(|_| "python3".into()))
+    let out = Command::new(python())
         .args(["-m", "pytest", "-q", "-p", "no:cacheprovider", tests.to_str().unwrap()])
         // Not from the crate's folder: `python -m` puts the working folder first on the path,
         // where the package's sources lie without the extension.
