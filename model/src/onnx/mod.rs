@@ -129,11 +129,11 @@ fn attr_ints(name: &str, ints: &[i64]) -> AttributeProto {
 }
 
 fn attr_int(name: &str, i: i64) -> AttributeProto {
-    AttributeProto { name: name.into(), r#type: ATTR_INT, i, ..Default::default() }
+    AttributeProto { name: name.into(), r#type: ATTR_INT, i: Some(i), ..Default::default() }
 }
 
 fn attr_float(name: &str, f: f32) -> AttributeProto {
-    AttributeProto { name: name.into(), r#type: ATTR_FLOAT, f, ..Default::default() }
+    AttributeProto { name: name.into(), r#type: ATTR_FLOAT, f: Some(f), ..Default::default() }
 }
 
 fn attr_string(name: &str, s: &str) -> AttributeProto {
@@ -321,5 +321,24 @@ impl Graph {
             None => None,
         };
         Ok((self.conv("decoder.conv3", &d.conv3, &x)?, pressure))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use prost::Message;
+
+    #[test]
+    fn zero_valued_attributes_are_on_the_wire() {
+        // `i` is field 3, a varint: key (3 << 3) | 0, then the value 0.
+        let bytes = attr_int("ceil_mode", 0).encode_to_vec();
+        assert!(bytes.windows(2).any(|w| w == [0x18, 0x00]), "{bytes:?}");
+        // `f` is field 2, 32 bits: key (2 << 3) | 5, then four zero bytes.
+        let bytes = attr_float("alpha", 0.0).encode_to_vec();
+        assert!(bytes.windows(5).any(|w| w == [0x15, 0, 0, 0, 0]), "{bytes:?}");
+        // And they read back as present.
+        let back = AttributeProto::decode(attr_int("axis", 0).encode_to_vec().as_slice()).unwrap();
+        assert_eq!(back.i, Some(0));
     }
 }

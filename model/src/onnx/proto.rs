@@ -87,10 +87,13 @@ pub struct AttributeProto {
     pub name: String,
     #[prost(int32, tag = "20")]
     pub r#type: i32,
-    #[prost(float, tag = "2")]
-    pub f: f32,
-    #[prost(int64, tag = "3")]
-    pub i: i64,
+    /// `f` and `i` are written even when zero: ONNX declares them in proto2, where a field is
+    /// there or not, and OpenCV's importer refuses an INT attribute without its `i` (a MaxPool's
+    /// `ceil_mode = 0`), where ONNX Runtime and tract read the missing field as 0.
+    #[prost(float, optional, tag = "2")]
+    pub f: Option<f32>,
+    #[prost(int64, optional, tag = "3")]
+    pub i: Option<i64>,
     #[prost(bytes = "vec", tag = "4")]
     pub s: Vec<u8>,
     /// A subgraph (`If`'s branches).
