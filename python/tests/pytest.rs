@@ -66,6 +66,15 @@ fn python() -> String {
     std::env::var("PYTHON").unwrap_or_else(|_| "python3".into())
 }
 
+/// The interpreter with the package installed under `root/site` first on its path, run from
+/// `root`: not from the crate's folder, since `python -m` puts the working folder first on the
+/// path, where the package's sources lie without the extension.
+fn python_on(root: &Path) -> Command {
+    let mut command = Command::new(python());
+    command.current_dir(root).env("PYTHONPATH", root.join("site")).env("PYTHONDONTWRITEBYTECODE", "1");
+    command
+}
+
 /// A simulated capture session of `unit`: full camera frames as PNG, the log, the reference
 /// and saw-tooth frames, the true geometry in `.simulation/truth.json`.
 fn session(unit: &dataset::SensorUnit, dir: &Path, frames: u32) {
@@ -133,11 +142,8 @@ fn the_python_package_passes_its_tests() {
     std::fs::write(root.join("cases.json"), serde_json::to_vec(&cases).unwrap()).unwrap();
 
     // The package imported is the one installed above (the wheel's, under DENSETACT_WHEEL).
-    let out = Command::new(python())
+    let out = python_on(root)
         .args(["-c", "import densetact._densetact as m; print(m.__file__)"])
-        .current_dir(root)
-        .env("PYTHONPATH", root.join("site"))
-        .env("PYTHONDONTWRITEBYTECODE", "1")
         .output()
         .expect("python3 runs");
     let imported = String::from_utf8_lossy(&out.stdout).trim().to_string();
@@ -148,13 +154,8 @@ fn the_python_package_passes_its_tests() {
     );
 
     let tests = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests");
-    let out = Command::new(python())
+    let out = python_on(root)
         .args(["-m", "pytest", "-q", "-p", "no:cacheprovider", tests.to_str().unwrap()])
-        // Not from the crate's folder: `python -m` puts the working folder first on the path,
-        // where the package's sources lie without the extension.
-        .current_dir(root)
-        .env("PYTHONPATH", root.join("site"))
-        .env("PYTHONDONTWRITEBYTECODE", "1")
         .env("DENSETACT_TEST_DIR", root)
         .output()
         .expect("python3 runs");
