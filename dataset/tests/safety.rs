@@ -7,7 +7,7 @@ use dataset::Mesh;
 use dataset::procedural::ProceduralKit;
 use glam::Vec3;
 
-mod common;
+use crate::common;
 use common::{dataset, refused};
 
 /// A kit folder in the authors' layout holding one procedural indicator and indenter, written

@@ -9,7 +9,7 @@ use std::process::{Command, Output};
 use formats::dataset::Manifest;
 use sensor::DepthMap;
 
-mod common;
+use crate::common;
 use common::{dataset, files, ok};
 
 const BIN: &str = env!("CARGO_BIN_EXE_dataset");

@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::process::Output;
 
-mod common;
+use crate::common;
 use common::{all_files, dataset, ok, refused};
 
 fn s(p: &Path) -> &str {

@@ -1,7 +1,7 @@
 //! A bundle with the pressure output: the force read back through the dome's areas, its files,
 //! the tare and the gate, and the evaluation's force figures.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

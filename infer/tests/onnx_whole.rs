@@ -4,7 +4,7 @@
 //! untouched frame, as it is and drifted (the gate, on the balanced comparison, answers zeros
 //! through its `If`); for RGB and reference-difference inputs.
 
-mod common;
+use crate::common;
 
 use burn::nn::conv::Conv2d;
 use common::{bundle_with, pressed};

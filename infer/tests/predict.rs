@@ -1,7 +1,7 @@
 //! Prediction from a bundle: the contact gate, shapes and masks, bad frames, the CLI's files, and
 //! the crate's dependencies.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

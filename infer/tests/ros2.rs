@@ -2,7 +2,7 @@
 //! cloud, depth image and contact summary, and their fields and values are `predict`'s.
 #![cfg(feature = "ros2")]
 
-mod common;
+use crate::common;
 
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};

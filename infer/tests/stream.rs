@@ -1,7 +1,7 @@
 //! `infer stream`: every frame once and in order, results equal to `predict`'s, stale frames
 //! dropped and counted on a live source, bad frames skipped by name, the CLI's files.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

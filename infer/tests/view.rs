@@ -3,7 +3,7 @@
 
 #![cfg(feature = "view")]
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

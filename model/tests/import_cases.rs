@@ -1,6 +1,6 @@
 //! PyTorch import: legacy keys, encoder-only torchvision checkpoints, and broken files.
 
-mod common;
+use crate::common;
 
 use std::path::PathBuf;
 

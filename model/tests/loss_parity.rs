@@ -1,6 +1,6 @@
 //! The loss and its gradient against PyTorch's (float64) reference values.
 
-mod common;
+use crate::common;
 
 use burn::tensor::Tensor;
 use common::{SafeFile, errors, fixtures, to_vec};

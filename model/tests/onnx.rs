@@ -2,7 +2,7 @@
 //! sizes that are not multiples of 32, for batches of any size from one file, for our variants
 //! and for the PyTorch fixture; the metadata carries the input encoding and depth scale.
 
-mod common;
+use crate::common;
 
 use burn::tensor::Distribution;
 use common::{SafeFile, errors, fixtures, to_vec};

@@ -1,6 +1,6 @@
 //! The imported PyTorch DenseDepth gives PyTorch's eval-mode output.
 
-mod common;
+use crate::common;
 
 use common::{SafeFile, errors, fixtures, to_vec};
 use model::import::load_pytorch;

@@ -1,7 +1,7 @@
 //! Numerical stress: the loss and its gradient stay finite on degenerate and extreme inputs,
 //! in f32 and f16; the trainable upsample equals `interpolate` and trains.
 
-mod common;
+use crate::common;
 
 use burn::tensor::{DType, Device, Distribution, Tensor};
 use common::to_vec;

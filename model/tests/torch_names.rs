@@ -1,7 +1,7 @@
 //! Weights out under PyTorch's names: the reference fixture's `state_dict` comes back key for
 //! key (shapes included) and bit for bit, and import -> export -> import is exact for our own architectures too.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 

@@ -4,7 +4,7 @@
 
 #![cfg(feature = "wgpu")]
 
-mod common;
+use crate::common;
 
 use burn::tensor::{Distribution, Tensor, TensorData};
 use common::{SafeFile, errors, fixtures, to_vec};

@@ -7,10 +7,9 @@ use std::process::Command;
 use burn::tensor::{Distribution, Tensor};
 use train::{FitConfig, OnBadData, RunOptions, Start, fit, fit_with};
 
-mod common;
+use crate::common;
+use crate::kill;
 use common::{tiny_dataset, unit_dataset};
-#[path = "../../dataset/tests/common/kill.rs"]
-mod kill;
 
 const BIN: &str = env!("CARGO_BIN_EXE_train");
 

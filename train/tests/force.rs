@@ -5,7 +5,7 @@ use std::path::Path;
 
 use train::{FitConfig, Start, fit};
 
-mod common;
+use crate::common;
 use common::tiny_dataset;
 
 fn config(data: &Path, epochs: usize, force_weight: f64) -> FitConfig {

@@ -11,7 +11,7 @@ use train::data::{DepthBatcher, DepthDataset, DepthItem};
 use train::parallel::{DataParallel, share_sizes};
 use train::{FitConfig, Start, fit_on};
 
-mod common;
+use crate::common;
 use common::tiny_dataset;
 
 /// Every gradient the module has in `grads`, parameter by parameter, in visiting order.

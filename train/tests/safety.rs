@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-mod common;
+use crate::common;
 use common::tiny_dataset;
 
 const BIN: &str = env!("CARGO_BIN_EXE_train");

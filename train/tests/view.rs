@@ -10,7 +10,7 @@ use burn::data::dataloader::batcher::Batcher;
 use train::{FitConfig, RunOptions, Start, fit_with};
 use view::{entity, timeline};
 
-mod common;
+use crate::common;
 use common::tiny_dataset;
 
 fn config(data: &Path) -> FitConfig {

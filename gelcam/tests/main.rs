@@ -1,0 +1,5 @@
+//! The crate's integration tests, one module a file, built as one test binary: one link and
+//! one copy of the generic code they share, instead of one a file (`Cargo.toml`: `autotests`).
+
+mod calibration;
+mod session;
