@@ -270,14 +270,26 @@ impl Graph {
 
     /// How many of the `n` bin indices `bins` (int64 in [0, BALANCE_BINS)) fall in each bin:
     /// float counts (exact to 2^24).
+    ///
+    /// The counts are scattered into zeros at least as long as the indices, then cut to the
+    /// bins: ONNX allows fewer bins than indices, but OpenCV's DNN module refuses a `Scatter`
+    /// whose indices are longer than its data.
     fn histogram(&mut self, name: &str, bins: &str, n: usize) -> String {
         let bins_len = sensor::gate::BALANCE_BINS;
-        let zeros = self.floats("whole.balance.empty_histogram", &[bins_len as i64], &vec![0.0; bins_len]);
+        let zero = self.scalar("whole.zero", 0.0);
         let one = self.scalar("whole.one", 1.0);
+        let room = self.ints(&format!("whole.balance.room_{}", n.max(bins_len)), &[1], &[n.max(bins_len) as i64]);
+        let zeros = self.node("Expand", &format!("{name}.zeros"), &[&zero, &room], vec![]);
         let shape = self.ints(&format!("{name}.n"), &[1], &[n as i64]);
         let ones = self.node("Expand", &format!("{name}.ones"), &[&one, &shape], vec![]);
         let attrs = vec![attr_int("axis", 0), attr_string("reduction", "add")];
-        self.node("ScatterElements", name, &[&zeros, bins, &ones], attrs)
+        let counts = self.node("ScatterElements", &format!("{name}.roomy"), &[&zeros, bins, &ones], attrs);
+        let [start, end, axis] = [
+            self.ints("whole.int.[0]", &[1], &[0]),
+            self.ints(&format!("whole.int.[{bins_len}]"), &[1], &[bins_len as i64]),
+            self.ints("whole.axes.0", &[1], &[0]),
+        ];
+        self.node("Slice", name, &[&counts, &start, &end, &axis], vec![])
     }
 
     /// The first bin (int64 scalar) whose running count of `counts`, less `before` (the count
@@ -358,8 +370,10 @@ impl Graph {
             let counts = self.histogram(&format!("{name}.counts"), &bins, n);
             let m = self.first_reaching_half(&format!("{name}.median"), &counts, None, &total);
             // The median absolute deviation: the same over the deviations' histogram.
-            let dev = self.node("Sub", &format!("{name}.dev"), &[&bins, &m], vec![]);
-            let dev = self.node("Abs", &format!("{name}.absdev"), &[&dev], vec![]);
+            // |bins - m| as the larger of the two differences: OpenCV's `Abs` takes floats only.
+            let up = self.node("Sub", &format!("{name}.dev"), &[&bins, &m], vec![]);
+            let down = self.node("Sub", &format!("{name}.dev_down"), &[&m, &bins], vec![]);
+            let dev = self.node("Max", &format!("{name}.absdev"), &[&up, &down], vec![]);
             let dev_counts = self.histogram(&format!("{name}.dev_counts"), &dev, n);
             let mad = self.first_reaching_half(&format!("{name}.mad"), &dev_counts, None, &total);
             // reach = max(ceil(sigmas x mad x mad_to_sigma), min): in integers, as the f64 product
