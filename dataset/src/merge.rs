@@ -298,7 +298,7 @@ fn unit_files(dir: &Path) -> Result<BTreeMap<String, Vec<u8>>> {
         let path = entry?.path();
         if path.is_file()
             && let Some(name) = path.file_name().and_then(|n| n.to_str())
-            && !name.ends_with(".tmp")
+            && !formats::fs::is_temporary(name)
         {
             files.insert(
                 name.to_string(),

@@ -91,11 +91,17 @@ pub fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
 
-/// Removes the temporary files (`*.tmp`) a killed run left in `dir`.
+/// Whether a file name is one [`temp_path`] makes (`.NAME.PID.tmp`): what a write killed before
+/// its rename leaves behind.
+pub fn is_temporary(name: &str) -> bool {
+    name.starts_with('.') && name.ends_with(".tmp")
+}
+
+/// Removes the temporary files a killed run left in `dir` ([`is_temporary`]).
 pub fn remove_temporaries(dir: &Path) -> Result<(), FsError> {
     for entry in std::fs::read_dir(dir).map_err(|e| FsError::new(dir, e))? {
         let path = entry.map_err(|e| FsError::new(dir, e))?.path();
-        if path.file_name().is_some_and(|n| n.to_string_lossy().ends_with(".tmp")) {
+        if path.file_name().is_some_and(|n| is_temporary(&n.to_string_lossy())) {
             std::fs::remove_file(&path).map_err(|e| FsError::new(&path, e))?;
         }
     }

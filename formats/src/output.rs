@@ -150,6 +150,17 @@ pub fn check_distinct(outputs: &[&Path]) -> Result<(), OutputError> {
 }
 
 /// What a folder holds, for a refusal: its entry count and a few names.
+/// Whether `dir` holds nothing but this tool's temporary files (none at all included).
+fn holds_only_temporaries(dir: &Path) -> bool {
+    std::fs::read_dir(dir).is_ok_and(|mut d| {
+        d.all(|e| {
+            e.is_ok_and(|e| {
+                e.file_type().is_ok_and(|t| t.is_file()) && crate::fs::is_temporary(&e.file_name().to_string_lossy())
+            })
+        })
+    })
+}
+
 fn contents(dir: &Path) -> String {
     let mut names: Vec<String> = std::fs::read_dir(dir)
         .map(|d| {
@@ -224,7 +235,8 @@ pub fn check_dir(dir: &Path, kind: OutputKind, inputs: &[&Path]) -> Result<(), O
     match marker_kind(dir) {
         Some(k) if k == kind => Ok(()),
         Some(k) => refuse(format!("holds {}, not {}; use another path", k.name(), kind.name())),
-        None if std::fs::read_dir(dir).map(|mut d| d.next().is_none()).unwrap_or(false) => Ok(()),
+        // Empty, or holding only what a claim killed before its marker's rename leaves.
+        None if holds_only_temporaries(dir) => Ok(()),
         None => refuse(format!(
             "holds {} that this tool did not write as {}; use another path, or an empty folder",
             contents(dir),
@@ -284,6 +296,19 @@ mod tests {
         let empty = tmp.path().join("empty");
         std::fs::create_dir(&empty).unwrap();
         drop(claim_dir(&empty, OutputKind::Run, &[]).unwrap());
+
+        // A claim killed between its marker's temporary file and the rename: still empty.
+        let killed = tmp.path().join("killed");
+        std::fs::create_dir(&killed).unwrap();
+        std::fs::write(crate::fs::temp_path(&killed.join(MARKER)), b"{\"ki").unwrap();
+        drop(claim_dir(&killed, OutputKind::Run, &[]).unwrap());
+        assert_eq!(marker_kind(&killed), Some(OutputKind::Run));
+        // A temporary file beside someone else's file does not make it ours.
+        let mixed = tmp.path().join("mixed");
+        std::fs::create_dir(&mixed).unwrap();
+        std::fs::write(crate::fs::temp_path(&mixed.join(MARKER)), b"").unwrap();
+        std::fs::write(mixed.join("notes.txt"), b"mine").unwrap();
+        assert!(check_dir(&mixed, OutputKind::Run, &[]).is_err());
 
         let theirs = tmp.path().join("theirs");
         std::fs::create_dir(&theirs).unwrap();

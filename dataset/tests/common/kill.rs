@@ -25,11 +25,16 @@ pub fn kill_anywhere(bin: &str, first: &[String], again: &[String], kills: usize
     let seed = std::env::var("DENSETACT_KILL_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(seed);
     let mut rng = formats::SplitMix64::new(seed);
     let mut result = Kills { at_ms: Vec::new(), mid_run: 0 };
+    // Each run's messages go to a file (a pipe nobody reads could stall the run), shown when the
+    // run fails.
+    let log = tempfile::NamedTempFile::new().unwrap();
     for k in 0..kills {
         let args = if k == 0 { first } else { again };
         let at = span.mul_f64(2.0 * rng.unit() / kills as f64);
         let start = Instant::now();
-        let mut child = Command::new(bin).args(args).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
+        let stderr = Stdio::from(log.reopen().unwrap());
+        log.as_file().set_len(0).unwrap();
+        let mut child = Command::new(bin).args(args).stdout(Stdio::null()).stderr(stderr).spawn().unwrap();
         std::thread::sleep(at.saturating_sub(start.elapsed()));
         match child.try_wait().unwrap() {
             None => {
@@ -37,7 +42,12 @@ pub fn kill_anywhere(bin: &str, first: &[String], again: &[String], kills: usize
                 child.wait().unwrap();
                 result.mid_run += 1;
             }
-            Some(status) => assert!(status.success(), "run {k} ({args:?}) failed before its kill"),
+            Some(status) => assert!(
+                status.success(),
+                "run {k} ({args:?}) failed before its kill at {at:?}, after {:?} (kills so far {result:?}): {}",
+                start.elapsed(),
+                std::fs::read_to_string(log.path()).unwrap_or_default()
+            ),
         }
         result.at_ms.push(at.as_millis() as u64);
     }
