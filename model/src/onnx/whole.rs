@@ -72,7 +72,7 @@ pub fn export_whole(p: &WholePredictor) -> Result<Vec<u8>, OnnxError> {
     let perm = attr_ints("perm", &[2, 0, 1]);
     let levels = g.node("Transpose", "whole.planes_u8", &[FRAME], vec![perm]);
     let raw = g.cast("whole.planes", &levels, FLOAT);
-    let balanced = p.reference.map(|reference| g.balance(&levels, reference, &mask));
+    let balanced = p.reference.map(|reference| g.balance(&raw, reference, &mask));
     let gate = match (p.reference, &balanced, &file.contact_gate) {
         (Some(reference), Some(b), Some(record)) => Some(g.gate(&raw, &b.gains, reference, &mask, record.gate)),
         _ => None,
@@ -321,11 +321,11 @@ impl Graph {
 
     /// The frame's drift against `reference` taken out, as `Balance::fit` then `undo` do; the
     /// gains are kept for the gate.
-    fn balance(&mut self, levels: &str, reference: &RgbImage, mask: &[bool]) -> Balanced {
+    /// `raw`: the frame's planes, `[3, crop, crop]` float grey levels.
+    fn balance(&mut self, raw: &str, reference: &RgbImage, mask: &[bool]) -> Balanced {
         use sensor::gate::*;
         let n_px = mask.len();
-        let levels = self.cast("whole.balance.levels", levels, INT64);
-        let flat = self.reshape("whole.balance.flat", &levels, &[3 * n_px as i64]);
+        let flat = self.reshape("whole.balance.flat", raw, &[3 * n_px as i64]);
         // Ratios binned and bins turned into gains by tables the fit's own functions fill, so
         // that no runtime's division (tract multiplies by a reciprocal) moves a bin.
         let table: Vec<i64> = (0..=255u8)
@@ -334,14 +334,10 @@ impl Graph {
         let bin_table = self.ints("whole.balance.bin_table", &[table.len() as i64], &table);
         let gain_table: Vec<f32> = (0..BALANCE_BINS).map(balance_gain).collect();
         let gain_table = self.floats("whole.balance.gain_table", &[BALANCE_BINS as i64], &gain_table);
-        // Each bin's undo of every grey level (row `BALANCE_BINS`: no gain, the level itself).
-        let undo_table: Vec<f32> = (0..=BALANCE_BINS)
-            .flat_map(|b| {
-                let inverse = if b == BALANCE_BINS { 1.0 } else { 1.0 / balance_gain(b) };
-                (0..=255u8).map(move |v| undo_level(v, inverse) as f32)
-            })
-            .collect();
-        let undo_table = self.floats("whole.balance.undo_table", &[undo_table.len() as i64], &undo_table);
+        // Each bin's inverse gain, as `undo_level` is given it (the last entry: no gain).
+        let inverses: Vec<f32> =
+            (0..=BALANCE_BINS).map(|b| if b == BALANCE_BINS { 1.0 } else { 1.0 / balance_gain(b) }).collect();
+        let inverses = self.floats("whole.balance.inverses", &[inverses.len() as i64], &inverses);
         let no_gain = self.ints("whole.balance.no_gain_row", &[1], &[BALANCE_BINS as i64]);
         let (mut gains, mut rows) = (Vec::new(), Vec::new());
         for c in 0..3 {
@@ -362,7 +358,9 @@ impl Graph {
             // Each sample's row of the table: its reference value times 256.
             let starts: Vec<i64> = q.iter().map(|&q| q as i64 * 256).collect();
             let starts = self.ints(&format!("{name}.table_rows"), &[n as i64], &starts);
-            let p = self.node("Gather", &format!("{name}.frame"), &[&flat, &idx], vec![]);
+            // The samples' levels, gathered as floats and cast: the whole frame is never cast.
+            let p = self.node("Gather", &format!("{name}.frame_f"), &[&flat, &idx], vec![]);
+            let p = self.cast(&format!("{name}.frame"), &p, INT64);
             let at = self.node("Add", &format!("{name}.table_at"), &[&p, &starts], vec![]);
             let bins = self.node("Gather", &format!("{name}.bins"), &[&bin_table, &at], vec![]);
             // The fit's histogram, and its median: the first bin whose running count reaches half.
@@ -420,16 +418,18 @@ impl Graph {
         let off = self.node("ReduceMax", "whole.balance.max_off", &[&off], vec![attr_int("keepdims", 0)]);
         let tol = self.scalar("whole.balance.no_drift", NO_DRIFT);
         let none = self.node("Less", "whole.balance.none", &[&off, &tol], vec![]);
-        // The undo by table: each channel's row (its bin's, or no gain's where there is no
-        // drift), every pixel's level looked up in it.
+        // The undo, as `undo_level` computes it: each channel's inverse gain (its bin's, or none
+        // where there is no drift) times every level, one float32 product each (exactly Rust's),
+        // rounded halves up and kept in range.
         let refs: Vec<&str> = rows.iter().map(|s| s.as_str()).collect();
         let rows = self.node("Concat", "whole.balance.rows3", &refs, vec![attr_int("axis", 0)]);
         let rows = self.node("Where", "whole.balance.rows_used", &[&none, &no_gain, &rows], vec![]);
-        let width = self.int("whole.int.256", 256);
-        let rows = self.node("Mul", "whole.balance.row_starts", &[&rows, &width], vec![]);
-        let rows = self.reshape("whole.balance.row_starts3", &rows, &[3, 1, 1]);
-        let at = self.node("Add", "whole.balance.undo_at", &[&levels, &rows], vec![]);
-        let planes = self.node("Gather", "whole.balance.planes", &[&undo_table, &at], vec![]);
+        let inverse = self.node("Gather", "whole.balance.inverse3", &[&inverses, &rows], vec![]);
+        let inverse = self.reshape("whole.balance.inverse", &inverse, &[3, 1, 1]);
+        let scaled = self.node("Mul", "whole.balance.scaled", &[raw, &inverse], vec![]);
+        let rounded = self.round_half_up("whole.balance.rounded", &scaled);
+        let (zero, top) = (self.scalar("whole.zero", 0.0), self.scalar("whole.level.max", 255.0));
+        let planes = self.node("Clip", "whole.balance.planes", &[&rounded, &zero, &top], vec![]);
         Balanced { planes, gains }
     }
 
