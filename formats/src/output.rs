@@ -149,7 +149,6 @@ pub fn check_distinct(outputs: &[&Path]) -> Result<(), OutputError> {
     Ok(())
 }
 
-/// What a folder holds, for a refusal: its entry count and a few names.
 /// Whether `dir` holds nothing but this tool's temporary files (none at all included).
 fn holds_only_temporaries(dir: &Path) -> bool {
     std::fs::read_dir(dir).is_ok_and(|mut d| {
@@ -161,6 +160,7 @@ fn holds_only_temporaries(dir: &Path) -> bool {
     })
 }
 
+/// What a folder holds, for a refusal: its entry count and a few names.
 fn contents(dir: &Path) -> String {
     let mut names: Vec<String> = std::fs::read_dir(dir)
         .map(|d| {
