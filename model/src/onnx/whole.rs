@@ -319,6 +319,14 @@ impl Graph {
         self.node("Add", name, &[&floor, &up], vec![])
     }
 
+    /// The grey level (0..=255, as a float) nearest x, halves up: what the Rust code gets by
+    /// rounding and clamping a level, in either order (both integral bounds).
+    fn grey_level(&mut self, name: &str, x: &str) -> String {
+        let rounded = self.round_half_up(&format!("{name}.rounded"), x);
+        let (zero, top) = (self.scalar("whole.zero", 0.0), self.scalar("whole.level.max", 255.0));
+        self.node("Clip", name, &[&rounded, &zero, &top], vec![])
+    }
+
     /// The frame's drift against `reference` taken out, as `Balance::fit` then `undo` do; the
     /// gains are kept for the gate.
     /// `raw`: the frame's planes, `[3, crop, crop]` float grey levels.
@@ -338,8 +346,8 @@ impl Graph {
         let inverses: Vec<f32> =
             (0..=BALANCE_BINS).map(|b| if b == BALANCE_BINS { 1.0 } else { 1.0 / balance_gain(b) }).collect();
         let inverses = self.floats("whole.balance.inverses", &[inverses.len() as i64], &inverses);
-        let no_gain = self.ints("whole.balance.no_gain_row", &[1], &[BALANCE_BINS as i64]);
-        let (mut gains, mut rows) = (Vec::new(), Vec::new());
+        let no_gain = self.ints("whole.balance.no_gain_bin", &[1], &[BALANCE_BINS as i64]);
+        let (mut gains, mut undo_bins) = (Vec::new(), Vec::new());
         for c in 0..3 {
             let name = format!("whole.balance.{c}");
             let (idx, q): (Vec<i64>, Vec<u8>) = reference
@@ -351,7 +359,7 @@ impl Graph {
             let n = idx.len();
             if (n as u32) < BALANCE_MIN_SAMPLES {
                 gains.push(self.floats("whole.one1", &[1], &[1.0]));
-                rows.push(no_gain.clone());
+                undo_bins.push(no_gain.clone());
                 continue;
             }
             let idx = self.ints(&format!("{name}.idx"), &[n as i64], &idx);
@@ -405,7 +413,7 @@ impl Graph {
             // half the window's.
             let trimmed = self.first_reaching_half(&format!("{name}.trimmed"), &counts, Some(&below), &inside);
             let gain = self.node("Gather", &format!("{name}.gain_scalar"), &[&gain_table, &trimmed], vec![]);
-            rows.push(self.reshape(&format!("{name}.row"), &trimmed, &[1]));
+            undo_bins.push(self.reshape(&format!("{name}.undo_bin"), &trimmed, &[1]));
             gains.push(self.reshape(&format!("{name}.gain"), &gain, &[1]));
         }
         let refs: Vec<&str> = gains.iter().map(|s| s.as_str()).collect();
@@ -421,15 +429,13 @@ impl Graph {
         // The undo, as `undo_level` computes it: each channel's inverse gain (its bin's, or none
         // where there is no drift) times every level, one float32 product each (exactly Rust's),
         // rounded halves up and kept in range.
-        let refs: Vec<&str> = rows.iter().map(|s| s.as_str()).collect();
-        let rows = self.node("Concat", "whole.balance.rows3", &refs, vec![attr_int("axis", 0)]);
-        let rows = self.node("Where", "whole.balance.rows_used", &[&none, &no_gain, &rows], vec![]);
-        let inverse = self.node("Gather", "whole.balance.inverse3", &[&inverses, &rows], vec![]);
+        let refs: Vec<&str> = undo_bins.iter().map(|s| s.as_str()).collect();
+        let undo_bins = self.node("Concat", "whole.balance.undo_bins3", &refs, vec![attr_int("axis", 0)]);
+        let undo_bins = self.node("Where", "whole.balance.undo_bins_used", &[&none, &no_gain, &undo_bins], vec![]);
+        let inverse = self.node("Gather", "whole.balance.inverse3", &[&inverses, &undo_bins], vec![]);
         let inverse = self.reshape("whole.balance.inverse", &inverse, &[3, 1, 1]);
         let scaled = self.node("Mul", "whole.balance.scaled", &[raw, &inverse], vec![]);
-        let rounded = self.round_half_up("whole.balance.rounded", &scaled);
-        let (zero, top) = (self.scalar("whole.zero", 0.0), self.scalar("whole.level.max", 255.0));
-        let planes = self.node("Clip", "whole.balance.planes", &[&rounded, &zero, &top], vec![]);
+        let planes = self.grey_level("whole.balance.planes", &scaled);
         Balanced { planes, gains }
     }
 
@@ -497,9 +503,7 @@ impl Graph {
         if [h, w] != [s, s] {
             x = self.taps("whole.resize.vertical", &x, 1, &resize_taps(s, h));
             x = self.taps("whole.resize.horizontal", &x, 2, &resize_taps(s, w));
-            let (zero, top) = (self.scalar("whole.zero", 0.0), self.scalar("whole.level.max", 255.0));
-            x = self.node("Clip", "whole.resize.clamped", &[&x, &zero, &top], vec![]);
-            x = self.round_half_up("whole.resize.levels", &x);
+            x = self.grey_level("whole.resize.levels", &x);
         }
         // Grey levels / 255 by a table, as exact as the division (no runtime's reciprocal).
         let table: Vec<f32> = (0..=255u8).map(|v| v as f32 / 255.0).collect();
