@@ -168,7 +168,7 @@ impl Generator<'_> {
         let todo: Vec<u32> = ids.into_iter().filter(|id| !done.contains_key(id)).collect();
         let rays = RayBundle::new(self.sensor);
         let mask = self.sensor.valid_mask();
-        let dome = self.params.force_labels.then(|| Dome::new(self.sensor, &rays));
+        let dome = self.params.force_labels.then(|| rays.dome(self.sensor));
         let fresh = resumable::make_all(&todo, "generating", |id| self.make_sample(id, &rays, &mask, dome.as_ref()))?;
         let mut records = done;
         let generated = fresh.len();

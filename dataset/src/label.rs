@@ -258,7 +258,7 @@ impl Labeller<'_> {
         let todo: Vec<&Job> = jobs.iter().filter(|j| !done.contains_key(&j.id)).collect();
         let rays = RayBundle::new(self.sensor);
         let mask = self.sensor.valid_mask();
-        let dome = self.force.map(|_| Dome::new(self.sensor, &rays));
+        let dome = self.force.map(|_| rays.dome(self.sensor));
         let ids: Vec<u32> = (0..todo.len() as u32).collect();
         // A bad row is the row's problem; a failing write (a full disk, permissions) stops the
         // run whatever --on-bad-row says.

@@ -16,7 +16,6 @@ pub mod holes;
 pub mod kit;
 pub mod label;
 pub mod looks;
-pub mod mechanics;
 pub mod merge;
 pub mod mesh;
 pub mod procedural;
@@ -34,6 +33,8 @@ mod simd;
 pub mod touch;
 pub mod unit;
 
+/// The elastomer's contact mechanics (its own crate, shared with `infer`).
+pub use ::mechanics;
 pub use calibration::sawtooth::{SawTooth, SawToothShot};
 pub use kit::{Kit, Split, Trial};
 pub use mesh::{LoadOptions, Mesh, MeshError, UpAxis, parse_obj, parse_stl};

@@ -137,8 +137,9 @@ fn predict(args: PredictArgs) -> Result<()> {
     let predictor = load(&bundle, &model::backend::default_device(), no_tare)?;
     if pressure_out.is_some() && !predictor.has_force() {
         anyhow::bail!(
-            "{}: this bundle's network has no force output, so there is no pressure to write (train with \
-             --force-weight)",
+            "{}: this bundle has no force output, so there is no pressure to write (it records no elastomer to \
+             solve the contact with, and its network has no pressure output: export it from data with force \
+             labels, or train with --force-weight)",
             bundle.display()
         );
     }

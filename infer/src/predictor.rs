@@ -35,6 +35,45 @@ pub struct Force {
     pub wrench: Wrench,
 }
 
+/// The unit's contact model: the dome as the crop sees it and the elastomer fitted to its labels.
+struct ForceSolver {
+    dome: mechanics::Dome,
+    material: mechanics::Material,
+}
+
+impl ForceSolver {
+    fn new(sensor: &sensor::Sensor, elastomer: &model::bundle::ElastomerRecord) -> Self {
+        ForceSolver {
+            dome: mechanics::Dome::new(sensor),
+            material: mechanics::Material::with_effective_modulus(elastomer.effective_modulus_mpa),
+        }
+    }
+
+    /// The contact that `depth` shows (its pixels above the contact threshold) solved: the
+    /// pressure on the crop and its resultant. A contact the solver cannot settle (a depth map
+    /// no indenter could press) gives no force (`None`, with a warning) rather than a wrong one.
+    fn force(&self, depth: &DepthMap) -> Option<Force> {
+        let mut pressed = depth.clone();
+        for d in &mut pressed.depth_mm {
+            // NaN too: `<=` would keep it.
+            if d.is_nan() || *d <= sensor::CONTACT_THRESHOLD_MM {
+                *d = 0.0;
+            }
+        }
+        let grid = mechanics::GridConfig::default();
+        match mechanics::force_label(&self.dome, &pressed, &self.material, &grid) {
+            Ok(label) => Some(Force {
+                pressure: PressureMap { size_px: depth.size_px, pressure_kpa: label.pressure_kpa },
+                wrench: label.wrench,
+            }),
+            Err(e) => {
+                eprintln!("warning: the predicted contact could not be solved for force ({e}); reporting none");
+                None
+            }
+        }
+    }
+}
+
 /// One line for people: the force, its components and the peak pressure.
 pub fn force_line(force: &Force) -> String {
     let [fx, fy, fz] = force.wrench.force_n;
@@ -86,6 +125,12 @@ pub struct Predictor {
     /// The dome area each crop pixel sees, for the pressure's resultant (a bundle with the
     /// pressure output).
     areas: Option<std::sync::Arc<DomeAreas>>,
+    /// The contact model with the unit's fitted elastomer (a bundle that records one): each
+    /// predicted depth map's contact solved for pressure and wrench.
+    solver: Option<std::sync::Arc<ForceSolver>>,
+    /// Force from the contact solved on the predicted depth (true where the bundle records its
+    /// elastomer) or, false, from the network's pressure output where it has one.
+    pub solve_force: bool,
     /// Takes each frame's global drift against the reference ([`sensor::gate::Balance`]: an LED
     /// warming, auto exposure, white balance) out before the network reads it, so that it reads
     /// the colours it was trained on. On by default; without a reference there is nothing to
@@ -121,6 +166,8 @@ impl Predictor {
             tare_mm: None,
             tare_kpa: None,
             areas: file.model.pressure.then(|| std::sync::Arc::new(DomeAreas::new(&file.sensor))),
+            solver: file.elastomer.as_ref().map(|e| std::sync::Arc::new(ForceSolver::new(&file.sensor, e))),
+            solve_force: file.elastomer.is_some(),
             balance_input: true,
             file,
         };
@@ -230,9 +277,29 @@ impl Predictor {
         Ok(self.predict_network_all(frames)?.into_iter().map(|p| p.depth).collect())
     }
 
-    /// Whether the bundle's network reports contact force (the pressure output).
+    /// Solves each predicted contact with `elastomer` from now on (`None`: force only from a
+    /// network's pressure output), e.g. a stiffness fitted to a force-torque sensor's readings.
+    pub fn set_elastomer(&mut self, elastomer: Option<model::bundle::ElastomerRecord>) {
+        self.solver = elastomer.as_ref().map(|e| std::sync::Arc::new(ForceSolver::new(&self.file.sensor, e)));
+        self.solve_force = elastomer.is_some();
+        self.file.elastomer = elastomer;
+    }
+
+    /// The contact that `depth` shows (its pixels above the contact threshold) solved with the
+    /// unit's elastomer: what predictions report as force while [`solve_force`](Self::solve_force)
+    /// is on. `None` without an elastomer, or where the solve does not settle (with a warning).
+    pub fn solved_force(&self, depth: &DepthMap) -> Option<Force> {
+        self.solver.as_ref()?.force(depth)
+    }
+
+    /// Whether predictions carry contact force: solved on the predicted depth (the bundle
+    /// records its unit's elastomer) or from the network's pressure output.
     pub fn has_force(&self) -> bool {
-        self.areas.is_some()
+        self.solving() || self.areas.is_some()
+    }
+
+    fn solving(&self) -> bool {
+        self.solve_force && self.solver.is_some()
     }
 
     /// Depth and, where the bundle has the pressure output, the contact force, behind the
@@ -254,7 +321,7 @@ impl Predictor {
     /// pressure and wrench.
     fn untouched(&self) -> Prediction {
         let depth = DepthMap::zeros(self.file.sensor.crop_size_px);
-        let force = self.areas.as_ref().map(|_| Force {
+        let force = self.has_force().then(|| Force {
             pressure: PressureMap { size_px: depth.size_px, pressure_kpa: vec![0.0; depth.depth_mm.len()] },
             wrench: Wrench::default(),
         });
@@ -287,9 +354,10 @@ impl Predictor {
         }
         let heads = self.net.forward_heads(self.input_of_crops(frames));
         let depths = self.depth_maps(heads.depth);
-        let forces: Vec<Option<Force>> = match heads.pressure {
-            Some(p) => self.forces(p, &depths).into_iter().map(Some).collect(),
-            None => vec![None; depths.len()],
+        let forces: Vec<Option<Force>> = match (&self.solver, heads.pressure) {
+            (Some(_), _) if self.solve_force => depths.iter().map(|d| self.solved_force(d)).collect(),
+            (_, Some(p)) => self.forces(p, &depths).into_iter().map(Some).collect(),
+            _ => vec![None; depths.len()],
         };
         depths.into_iter().zip(forces).map(|(depth, force)| Prediction { depth, force, network_ran: true }).collect()
     }

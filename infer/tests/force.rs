@@ -156,3 +156,48 @@ fn a_stream_of_a_force_bundle_writes_pressure_and_force() {
     let fz: f64 = row[header.iter().position(|h| *h == "fz_n").unwrap()].parse().unwrap();
     assert_eq!(fz, want.wrench.force_n[2]);
 }
+
+/// A depth-only bundle that records its unit's elastomer reports the contact solved on the
+/// predicted depth: the contact model's own solve of that map (pixels under the contact
+/// threshold left out), scaling with E*, zero on a frame the gate answers; turned off, no force.
+#[test]
+fn a_fitted_elastomer_solves_the_force_on_the_predicted_depth() {
+    use mechanics::{Dome, GridConfig, Material, force_label};
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let renderer = common::bundle(&dir);
+    let mut p = Predictor::load(&dir, &model::backend::default_device()).unwrap();
+    assert!(!p.has_force() && p.solved_force(&sensor::DepthMap::zeros(p.file.sensor.crop_size_px)).is_none());
+    let record =
+        |e: f64| model::bundle::ElastomerRecord { effective_modulus_mpa: e, quartiles_mpa: [e, e], samples: 1, measured: 0 };
+    let e_star = 0.4;
+    p.set_elastomer(Some(record(e_star)));
+    assert!(p.has_force() && p.solve_force);
+
+    // A 1 mm dent as a network might predict it, and a speck below the contact threshold.
+    let (depth, frame) = pressed(&renderer);
+    let n = renderer.grid().width as usize;
+    let clean = sensor::DepthMap { size_px: n as u32, depth_mm: depth };
+    let mut specked = clean.clone();
+    specked.depth_mm[250 * n + 250] = 0.5 * sensor::CONTACT_THRESHOLD_MM;
+    let force = p.solved_force(&specked).unwrap();
+    let dome = Dome::new(&p.file.sensor);
+    let want = force_label(&dome, &clean, &Material::with_effective_modulus(e_star), &GridConfig::default()).unwrap();
+    assert_eq!(force.wrench, want.wrench);
+    assert_eq!(force.pressure.pressure_kpa, want.pressure_kpa);
+    let f = force.wrench.force_magnitude_n();
+    assert!(f > 0.1 && force.wrench.force_n[2] < -0.9 * f, "{:?}", force.wrench);
+    p.set_elastomer(Some(record(2.0 * e_star)));
+    let twice = p.solved_force(&specked).unwrap().wrench.force_magnitude_n();
+    assert!((twice / f - 2.0).abs() < 1e-9, "{twice} N against 2 x {f} N");
+
+    // Predictions solve the network's own depth, frame by frame; the gate's answer has none.
+    let pred = p.predict_network_all(std::slice::from_ref(&frame)).unwrap().remove(0);
+    assert_eq!(pred.force.unwrap().wrench, p.solved_force(&pred.depth).unwrap().wrench);
+    let reference = p.reference.clone().unwrap();
+    let untouched = p.predict_all(&reference).unwrap();
+    assert!(!untouched.network_ran);
+    assert_eq!(untouched.force.unwrap().wrench, sensor::Wrench::default());
+    p.solve_force = false;
+    assert!(!p.has_force() && p.predict_all(&frame).unwrap().force.is_none());
+}

@@ -68,6 +68,26 @@ pub struct BundleFile {
     /// network runs on every frame.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_gate: Option<GateRecord>,
+    /// The elastomer's stiffness fitted to the unit's force labels (or its force-torque
+    /// readings) when the bundle is made: inference solves the contact on each predicted depth
+    /// map with it for the pressure and the wrench. `None` (older or imported bundles, data
+    /// without force labels): force only from a network with the pressure output.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elastomer: Option<ElastomerRecord>,
+}
+
+/// A unit's elastomer as its force labels show it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ElastomerRecord {
+    /// `E / (1 - nu^2)` (MPa): the one constant a frictionless linear contact's pressure scales
+    /// with; the median over the fitting samples of |F_label| / |F_solved at 1 MPa|.
+    pub effective_modulus_mpa: f64,
+    /// The quartiles of those ratios (MPa): how well one linear material explains the labels.
+    pub quartiles_mpa: [f64; 2],
+    /// Train samples fitted on, and how many of them carry a measured wrench (a force-torque
+    /// sensor's, preferred over the model's label where a sample has both).
+    pub samples: usize,
+    pub measured: usize,
 }
 
 /// A bundle's contact gate and its tally on the training data's splits.
@@ -147,6 +167,7 @@ impl BundleFile {
             sha256: BTreeMap::new(),
             safetensors_keys: SafetensorsKeys::Burn,
             contact_gate: None,
+            elastomer: None,
         }
     }
 

@@ -14,6 +14,7 @@ mod depth;
 mod force;
 pub mod frame;
 pub mod gate;
+mod grid;
 pub mod resample;
 mod sensor;
 pub mod shared;
@@ -27,6 +28,7 @@ pub use depth::{
     npy_f32, step_depth_mm,
 };
 pub use force::{DomeAreas, Wrench};
+pub use grid::PixelGrid;
 pub use sensor::{DEFAULT_FOCAL_PX_PER_RAD, MAX_FRAME_SIDE_PX, PixelRay, SENSOR_FORMAT_VERSION, Sensor};
 
 /// Errors from reading, checking or writing a sensor description.

@@ -90,9 +90,15 @@ pub fn export_net_with(
         Some(record) => crate::gate::report_lines(record).iter().for_each(|l| println!("{l}")),
         None => println!("no contact gate: the dataset has no reference frame or no train frame with contact"),
     }
+    let elastomer = crate::elastomer::fit_elastomer(&state.config.data, skip_bad)?;
+    match &elastomer {
+        Some(record) => println!("{}", crate::elastomer::report_line(record)),
+        None => println!("no elastomer fitted: the dataset's train split has no force labels with contact"),
+    }
     let file = BundleFile {
         safetensors_keys: keys,
         contact_gate,
+        elastomer,
         input_encoding: test.encoding().text(),
         training: Some(TrainingRecord::Trained(Trained {
             data: state.config.data.clone(),
@@ -156,6 +162,13 @@ fn warn_differences(model: &model::DenseDepthConfig) {
 pub fn export_onnx(bundle: &Path, out: &Path, device: &burn::tensor::Device, whole: bool) -> Result<usize> {
     formats::output::check_file(out, &[bundle])?;
     let (net, file) = model::bundle::load_bundle(bundle, device)?;
+    if file.elastomer.is_some() && !file.model.pressure {
+        eprintln!(
+            "note: {}: the bundle's force is the contact solved on the predicted depth, which is no ONNX graph; \
+             the file carries depth alone (train with --force-weight for a pressure output it can carry)",
+            bundle.display()
+        );
+    }
     let bytes = if whole {
         let reference = model::bundle::load_reference(bundle, &file)?;
         model::onnx::export_whole(&model::onnx::WholePredictor {

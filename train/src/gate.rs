@@ -64,13 +64,7 @@ pub(crate) fn read_labelled(
     let Some(frame) = readable(sensor::frame::read_crop(&data.join(image), sensor), skip_bad)? else {
         return Ok(None);
     };
-    let depth_path = data.join(&s.depth);
-    let bytes = std::fs::read(&depth_path).with_context(|| format!("{}", depth_path.display()))?;
-    let depth = match DepthMap::decode_png_um(&depth_path, &bytes) {
-        Ok(d) => d,
-        Err(_) if skip_bad => return Ok(None),
-        Err(e) => return Err(e.into()),
-    };
+    let Some(depth) = read_depth(&data.join(&s.depth), skip_bad)? else { return Ok(None) };
     let own_reference = match &s.reference {
         Some(rel) => {
             let Some(own) = readable(sensor::frame::read_reference(&data.join(rel), sensor.crop_size_px), skip_bad)?
@@ -82,6 +76,17 @@ pub(crate) fn read_labelled(
         None => None,
     };
     Ok(Some(Labelled { frame, own_reference, depth }))
+}
+
+/// The depth map at `path`: `None` where it cannot be decoded and `skip_bad` leaves it out; a
+/// failing read is an error either way.
+pub(crate) fn read_depth(path: &Path, skip_bad: bool) -> Result<Option<DepthMap>> {
+    let bytes = std::fs::read(path).with_context(|| format!("{}", path.display()))?;
+    match DepthMap::decode_png_um(path, &bytes) {
+        Ok(d) => Ok(Some(d)),
+        Err(_) if skip_bad => Ok(None),
+        Err(e) => Err(e.into()),
+    }
 }
 
 /// A frame that was read: `None` where it cannot be decoded and `skip_bad` leaves it out; a

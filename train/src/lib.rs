@@ -7,6 +7,7 @@ pub mod checkpoint;
 mod config;
 mod contrast;
 pub mod data;
+pub mod elastomer;
 pub mod export;
 mod fit;
 pub mod gate;

@@ -1,5 +1,6 @@
 //! Training the pressure output beside depth (`--force-weight`): it learns, its bundle says it
-//! has it, a depth-only network gains it, and data without pressure maps is refused.
+//! has it, a depth-only network gains it, and data without pressure maps is refused. The bundle
+//! records the elastomer fitted to the labels.
 
 use std::path::Path;
 
@@ -90,6 +91,13 @@ fn the_pressure_output_trains_beside_depth_and_travels_in_the_bundle() {
     train::export::export_net(&fitted.net, &fitted.state, &bundle, &[]).unwrap();
     let (loaded, file) = model::bundle::load_bundle(&bundle, &device).unwrap();
     assert!(file.model.pressure && loaded.has_pressure());
+    // The bundle also records the unit's elastomer, fitted to the labels: the generator's own
+    // material (unit 3), whose E* the labels were solved with.
+    let e = file.elastomer.expect("an elastomer fitted to the force labels");
+    let truth = dataset::SensorUnit::from_seed(3, 25.0).elastomer.material().effective_modulus_mpa();
+    assert!((e.effective_modulus_mpa / truth - 1.0).abs() <= 0.01, "{e:?} against E* {truth} MPa");
+    assert!(e.quartiles_mpa[0] <= e.effective_modulus_mpa && e.effective_modulus_mpa <= e.quartiles_mpa[1]);
+    assert!(e.samples > 0 && e.measured == 0, "{e:?}");
 
     // A depth-only network given as the start gains a fresh pressure output and trains it.
     let depth_only = tiny().init(&device);
@@ -118,6 +126,8 @@ fn a_force_weight_on_data_without_pressure_maps_is_refused() {
             .expect("refused");
     let e = format!("{e:#}");
     assert!(e.contains("manifest.json") && e.contains("pressure map") && e.contains("--force-weight"), "{e}");
+    // Nor is an elastomer fitted: there is nothing to fit it to.
+    assert_eq!(train::elastomer::fit_elastomer(&data, false).unwrap(), None);
     // Without the force weight the same data trains depth alone.
     let fitted =
         fit(&tmp.path().join("run2"), &config(1, 0.0), Start { model_config: tiny(), weights: None }, &device, false);

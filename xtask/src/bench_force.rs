@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use dataset::generate::{build_scene, draw_sample};
-use dataset::mechanics::{Dome, GridConfig, Material, force_label, solve};
+use dataset::mechanics::{GridConfig, Material, force_label, solve};
 use dataset::{Kit, RayBundle, RayCaster, Skipping};
 use formats::dataset::GeneratorParams;
 use formats::stats::Summary;
@@ -24,9 +24,19 @@ pub struct Args {
     /// Skip the halved grid on the kit's scenes (for profiling the default alone).
     #[arg(long)]
     no_halved: bool,
+    /// A bundle to read `--data`'s frames with: its force output against the contact solved on
+    /// its predicted depth, both against the labels.
+    #[arg(long, requires = "data")]
+    bundle: Option<PathBuf>,
+    /// The dataset (with force labels) whose frames `--bundle` reads.
+    #[arg(long, requires = "bundle")]
+    data: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> Result<()> {
+    if let (Some(bundle), Some(data)) = (&args.bundle, &args.data) {
+        return from_depth(bundle, data);
+    }
     let material = Material::PAPER;
     let e_star = material.effective_modulus_mpa();
     println!(
@@ -62,7 +72,7 @@ pub fn run(args: Args) -> Result<()> {
         Kit::load_dir(&args.kit).with_context(|| format!("loading {}", args.kit.display()))?
     };
     let rays = RayBundle::new(&sensor);
-    let dome = Dome::new(&sensor, &rays);
+    let dome = rays.dome(&sensor);
     let params = GeneratorParams::new(1, args.samples, &kit.source);
     let (mut ms, mut ms_fine, mut forces, mut changes, mut nodes, mut steps) =
         (vec![], vec![], vec![], vec![], vec![], vec![]);
@@ -136,5 +146,60 @@ fn row(
         got[1],
         (got[1] / got[0] - 1.0) * 100.0
     );
+    Ok(())
+}
+
+/// Both of a bundle's routes to force on `data`'s test frames, in one run: the network's
+/// pressure output and the contact solved on the predicted depth with the elastomer fitted to
+/// the train split's labels (the bundle's own record, or fitted here for an older bundle).
+fn from_depth(bundle: &std::path::Path, data: &std::path::Path) -> Result<()> {
+    use formats::Split;
+    use formats::dataset::Manifest;
+    let mut predictor = infer::Predictor::load(bundle, &model::backend::default_device())?;
+    let manifest = Manifest::load(data)?;
+    let elastomer = match predictor.file.elastomer.clone() {
+        Some(e) => e,
+        None => train::elastomer::fit_elastomer(data, false)?.context("the dataset's train split has no force labels")?,
+    };
+    println!("{}", train::elastomer::report_line(&elastomer));
+    predictor.set_elastomer(Some(elastomer));
+    let has_head = predictor.file.model.pressure;
+    let (mut truth_n, mut head, mut solved, mut ms, mut ms_off) = (vec![], vec![], vec![], vec![], vec![]);
+    for s in manifest.split(Some(Split::Test)) {
+        let Some(w) = s.force_label() else { continue };
+        let frame = predictor.read_frame(&data.join(s.image.as_ref().context("a sample without an image")?))?;
+        predictor.solve_force = true;
+        let t = Instant::now();
+        let p = predictor.predict_all(&frame)?;
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+        truth_n.push(w.force_magnitude_n());
+        let errors = |f: &infer::predictor::Force| {
+            [(f.wrench.force_magnitude_n() - w.force_magnitude_n()).abs(), f.wrench.force_distance_n(w)]
+        };
+        solved.push(errors(p.force.as_ref().context("no solved force")?));
+        predictor.solve_force = false;
+        let t = Instant::now();
+        let p = predictor.predict_all(&frame)?;
+        ms_off.push(t.elapsed().as_secs_f64() * 1e3);
+        if has_head {
+            head.push(errors(p.force.as_ref().context("no force output")?));
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let m = mean(&truth_n);
+    println!("{} test frames with force labels, mean |F| {m:.3} N", truth_n.len());
+    println!("| force from | total force error (N) | % of mean | force vector error (N) |");
+    println!("|---|---:|---:|---:|");
+    for (name, v) in [("the network's pressure output", &head), ("the contact solved on the predicted depth", &solved)] {
+        if v.is_empty() {
+            continue;
+        }
+        let (total, vector): (Vec<f64>, Vec<f64>) = v.iter().map(|e| (e[0], e[1])).unzip();
+        println!("| {name} | {:.3} | {:.2} | {:.3} |", mean(&total), 100.0 * mean(&total) / m, mean(&vector));
+    }
+    for (name, v) in [("with the solve", ms), ("without it", ms_off)] {
+        let t = Summary::of(v);
+        println!("predict_all {name}, ms per test frame: median {:.2} [{:.2}, {:.2}]", t.median, t.q1, t.q3);
+    }
     Ok(())
 }

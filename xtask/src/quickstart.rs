@@ -43,7 +43,8 @@ pub struct Args {
     /// Weight of the training loss's extra L1 term over contact pixels (0: DenseDepth's loss).
     #[arg(long, default_value_t = 5.0)]
     contact_weight: f64,
-    /// Weight of the pressure output's term (0: depth only, no force figures).
+    /// Weight of the pressure output's term (0: no pressure output); the reported force is the
+    /// contact solved on the predicted depth either way.
     #[arg(long, default_value_t = train::FitConfig::DEFAULT_FORCE_WEIGHT)]
     force_weight: f64,
     /// Training seeds: the first trains the bundle the examples come from; each further one
@@ -411,7 +412,10 @@ fn print_summary(
         );
     }
     if stats.values().any(|s| s.force.is_some()) {
-        println!("\ncontact force (the pressure output summed over the dome; truth: the labels' elastic contact, N):");
+        println!(
+            "\ncontact force (the contact solved on the predicted depth with the elastomer fitted to the train \
+             labels; truth: the labels' elastic contact, N):"
+        );
         println!(
             "| split | images | mean force | total force error | % of mean | force vector error | pressure L1 (kPa) |"
         );
@@ -469,6 +473,7 @@ mod tests {
             network(cli.network().preset).with_input(args.channels).with_full_resolution(!args.half_resolution);
         assert_eq!(quickstart, cli.model_config().unwrap());
         assert_eq!(args.contact_weight, cli.fit_config(data.to_path_buf()).contact_weight);
+        assert_eq!(args.force_weight, cli.fit_config(data.to_path_buf()).force_weight);
     }
 
     /// `cargo xtask quickstart --smoke` end to end; `run` itself checks that its outputs exist

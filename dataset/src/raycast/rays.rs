@@ -291,6 +291,12 @@ pub struct RayBundle {
 }
 
 impl RayBundle {
+    /// The dome as these rays see it, for the contact model: force labels then read the same
+    /// directions as the depth maps cast along them.
+    pub fn dome(&self, sensor: &Sensor) -> mechanics::Dome {
+        mechanics::Dome::of_rays(sensor, self.indices.iter().zip(&self.dirs).map(|(&i, &d)| (i, d.into())))
+    }
+
     /// Side of a square tile, in pixels.
     pub const TILE_PX: u32 = 8;
     /// Side of a square block, in tiles.

@@ -27,7 +27,6 @@ use sensor::frame::Chroma;
 use crate::mechanics::{Contact, Dome, GridConfig};
 use crate::unit::SensorUnit;
 
-mod grid;
 #[allow(unsafe_code)] // the AVX2 noise and finishing pass
 mod noise;
 mod optics;
@@ -35,7 +34,7 @@ mod optics;
 mod shade;
 mod subgrid;
 
-pub use grid::PixelGrid;
+pub use sensor::PixelGrid;
 use noise::{Finish, GaussianNoise, quantise};
 use optics::{LensBlur, Tone};
 use shade::Lighting;

@@ -4,11 +4,9 @@
 use std::sync::Arc;
 
 use glam::{DVec3, Vec3};
-use sensor::{DepthMap, PNG_UM_PER_STEP, Sensor};
+use sensor::{DepthMap, PNG_UM_PER_STEP, PixelGrid, Sensor};
 
 use super::{Contact, GridConfig, Material, MechanicsError, Wrench};
-use crate::raycast::RayBundle;
-use crate::render::PixelGrid;
 
 /// The dome as a pixel grid's samples see it (the depth map's crop, or a renderer's grid),
 /// prepared once per sensor and grid.
@@ -23,12 +21,20 @@ pub struct Dome {
 }
 
 impl Dome {
-    /// The dome as the sensor's crop sees it, one sample per pixel.
-    pub fn new(sensor: &Sensor, rays: &RayBundle) -> Self {
+    /// The dome as the sensor's crop sees it, one sample per pixel, through the lens' own
+    /// directions (`Sensor::pixel_rays`).
+    pub fn new(sensor: &Sensor) -> Self {
+        Dome::of_rays(sensor, sensor.pixel_rays().into_iter().map(|r| (r.index, r.dir)))
+    }
+
+    /// The dome as the sensor's crop sees it, from each useful crop pixel's index and unit
+    /// direction (the ray caster's, which snaps them to its grid, so that labels and depth
+    /// maps see the same rays).
+    pub fn of_rays(sensor: &Sensor, rays: impl IntoIterator<Item = (u32, Vec3)>) -> Self {
         let n = sensor.crop_size_px as usize;
         let mut dirs = vec![Vec3::ZERO; n * n];
-        for (d, &i) in rays.dirs.iter().zip(&rays.indices) {
-            dirs[i as usize] = Vec3::from(*d);
+        for (i, d) in rays {
+            dirs[i as usize] = d;
         }
         Dome::on_grid(sensor, PixelGrid::crop(sensor), dirs.into())
     }

@@ -1,6 +1,6 @@
 //! Where a renderer samples the image: a regular grid in frame pixel coordinates.
 
-use sensor::Sensor;
+use crate::Sensor;
 
 /// A regular grid of sample points in frame pixel coordinates (pixel centres at integers).
 #[derive(Clone, Copy, Debug, PartialEq)]

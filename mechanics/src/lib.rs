@@ -18,12 +18,15 @@
 //! solid, so a contact on its side sees a half-space only while it stays small against the
 //! distance to the base).
 
+// `!(x > 0.0)` is used on purpose: unlike `x <= 0.0` it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 mod halfspace;
 mod label;
 mod lcp;
 mod surface;
 
-pub use formats::dataset::Wrench;
+pub use sensor::Wrench;
 pub use label::{Dome, ForceLabel, force_label};
 
 use faer::Mat;
@@ -45,6 +48,13 @@ impl Material {
     /// and Young's modulus gives 0.32 MPa at 6.5 (it is fitted on harder rubbers, so this is an
     /// estimate, not a measurement); a cured silicone's Poisson ratio is 0.46-0.499.
     pub const PAPER: Material = Material { youngs_modulus_mpa: 0.32, poisson_ratio: 0.48 };
+
+    /// A material of effective modulus `e_star_mpa`: all that a frictionless contact's pressure
+    /// and the pressed surface depend on (they scale with it; the contact set does not move),
+    /// so this is what a unit's force labels or a force-torque sensor's readings can fit.
+    pub fn with_effective_modulus(e_star_mpa: f64) -> Material {
+        Material { youngs_modulus_mpa: e_star_mpa, poisson_ratio: 0.0 }
+    }
 
     /// The plane-strain modulus a rigid indenter meets, `E / (1 - nu^2)` (MPa).
     pub fn effective_modulus_mpa(&self) -> f64 {
