@@ -168,8 +168,12 @@ fn a_fitted_elastomer_solves_the_force_on_the_predicted_depth() {
     let renderer = common::bundle(&dir);
     let mut p = Predictor::load(&dir, &model::backend::default_device()).unwrap();
     assert!(!p.has_force() && p.solved_force(&sensor::DepthMap::zeros(p.file.sensor.crop_size_px)).is_none());
-    let record =
-        |e: f64| model::bundle::ElastomerRecord { effective_modulus_mpa: e, quartiles_mpa: [e, e], samples: 1, measured: 0 };
+    let record = |e: f64| model::bundle::ElastomerRecord {
+        effective_modulus_mpa: e,
+        quartiles_mpa: [e, e],
+        samples: 1,
+        measured: 0,
+    };
     let e_star = 0.4;
     p.set_elastomer(Some(record(e_star)));
     assert!(p.has_force() && p.solve_force);

@@ -26,8 +26,8 @@ mod label;
 mod lcp;
 mod surface;
 
-pub use sensor::Wrench;
 pub use label::{Dome, ForceLabel, force_label};
+pub use sensor::Wrench;
 
 use faer::Mat;
 use glam::DVec3;

@@ -66,10 +66,6 @@ pub fn report_line(record: &ElastomerRecord) -> String {
     format!(
         "elastomer fitted to {} train samples' wrenches ({} measured): E* {:.4} MPa [quartiles {:.4}, {:.4}]; \
          inference solves each predicted contact with it for pressure and force",
-        record.samples,
-        record.measured,
-        record.effective_modulus_mpa,
-        record.quartiles_mpa[0],
-        record.quartiles_mpa[1]
+        record.samples, record.measured, record.effective_modulus_mpa, record.quartiles_mpa[0], record.quartiles_mpa[1]
     )
 }

@@ -159,7 +159,9 @@ fn from_depth(bundle: &std::path::Path, data: &std::path::Path) -> Result<()> {
     let manifest = Manifest::load(data)?;
     let elastomer = match predictor.file.elastomer.clone() {
         Some(e) => e,
-        None => train::elastomer::fit_elastomer(data, false)?.context("the dataset's train split has no force labels")?,
+        None => {
+            train::elastomer::fit_elastomer(data, false)?.context("the dataset's train split has no force labels")?
+        }
     };
     println!("{}", train::elastomer::report_line(&elastomer));
     predictor.set_elastomer(Some(elastomer));
@@ -190,7 +192,8 @@ fn from_depth(bundle: &std::path::Path, data: &std::path::Path) -> Result<()> {
     println!("{} test frames with force labels, mean |F| {m:.3} N", truth_n.len());
     println!("| force from | total force error (N) | % of mean | force vector error (N) |");
     println!("|---|---:|---:|---:|");
-    for (name, v) in [("the network's pressure output", &head), ("the contact solved on the predicted depth", &solved)] {
+    for (name, v) in [("the network's pressure output", &head), ("the contact solved on the predicted depth", &solved)]
+    {
         if v.is_empty() {
             continue;
         }

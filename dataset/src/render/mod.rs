@@ -34,9 +34,9 @@ mod optics;
 mod shade;
 mod subgrid;
 
-pub use sensor::PixelGrid;
 use noise::{Finish, GaussianNoise, quantise};
 use optics::{LensBlur, Tone};
+pub use sensor::PixelGrid;
 use shade::Lighting;
 use subgrid::Spread;
 
