@@ -42,9 +42,10 @@ struct ForceSolver {
 }
 
 impl ForceSolver {
-    fn new(sensor: &sensor::Sensor, elastomer: &model::bundle::ElastomerRecord) -> Self {
+    /// `rays`: the crop's useful pixels' rays, which the predictor already holds.
+    fn new(sensor: &sensor::Sensor, rays: &[sensor::PixelRay], elastomer: &model::bundle::ElastomerRecord) -> Self {
         ForceSolver {
-            dome: mechanics::Dome::new(sensor),
+            dome: mechanics::Dome::of_rays(sensor, rays.iter().map(|r| (r.index, r.dir))),
             material: mechanics::Material::with_effective_modulus(elastomer.effective_modulus_mpa),
         }
     }
@@ -166,11 +167,12 @@ impl Predictor {
             tare_mm: None,
             tare_kpa: None,
             areas: file.model.pressure.then(|| std::sync::Arc::new(DomeAreas::new(&file.sensor))),
-            solver: file.elastomer.as_ref().map(|e| std::sync::Arc::new(ForceSolver::new(&file.sensor, e))),
-            solve_force: file.elastomer.is_some(),
+            solver: None,
+            solve_force: false,
             balance_input: true,
             file,
         };
+        predictor.set_elastomer(predictor.file.elastomer.clone());
         predictor.reference = reference;
         let reference = predictor.reference.clone();
         predictor.set_tare(reference.as_ref())?;
@@ -280,7 +282,8 @@ impl Predictor {
     /// Solves each predicted contact with `elastomer` from now on (`None`: force only from a
     /// network's pressure output), e.g. a stiffness fitted to a force-torque sensor's readings.
     pub fn set_elastomer(&mut self, elastomer: Option<model::bundle::ElastomerRecord>) {
-        self.solver = elastomer.as_ref().map(|e| std::sync::Arc::new(ForceSolver::new(&self.file.sensor, e)));
+        self.solver =
+            elastomer.as_ref().map(|e| std::sync::Arc::new(ForceSolver::new(&self.file.sensor, &self.rays, e)));
         self.solve_force = elastomer.is_some();
         self.file.elastomer = elastomer;
     }
@@ -354,10 +357,10 @@ impl Predictor {
         }
         let heads = self.net.forward_heads(self.input_of_crops(frames));
         let depths = self.depth_maps(heads.depth);
-        let forces: Vec<Option<Force>> = match (&self.solver, heads.pressure) {
-            (Some(_), _) if self.solve_force => depths.iter().map(|d| self.solved_force(d)).collect(),
-            (_, Some(p)) => self.forces(p, &depths).into_iter().map(Some).collect(),
-            _ => vec![None; depths.len()],
+        let forces: Vec<Option<Force>> = match heads.pressure {
+            _ if self.solving() => depths.iter().map(|d| self.solved_force(d)).collect(),
+            Some(p) => self.forces(p, &depths).into_iter().map(Some).collect(),
+            None => vec![None; depths.len()],
         };
         depths.into_iter().zip(forces).map(|(depth, force)| Prediction { depth, force, network_ran: true }).collect()
     }

@@ -6,6 +6,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use formats::dataset::{Manifest, Split};
+use formats::stats::Summary;
 use mechanics::{Dome, GridConfig, Material, force_label};
 use model::bundle::ElastomerRecord;
 use rayon::prelude::*;
@@ -47,15 +48,14 @@ pub fn fit_elastomer(data: &Path, skip_bad: bool) -> Result<Option<ElastomerReco
             Ok((solved >= MIN_SOLVED_N && f > 0.0).then_some((f / solved, *measured)))
         })
         .collect::<Result<_>>()?;
-    let mut ratios: Vec<(f64, bool)> = ratios.into_iter().flatten().collect();
+    let ratios: Vec<(f64, bool)> = ratios.into_iter().flatten().collect();
     if ratios.is_empty() {
         return Ok(None);
     }
-    ratios.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let at = |q: f64| ratios[((ratios.len() - 1) as f64 * q).round() as usize].0;
+    let summary = Summary::of(ratios.iter().map(|r| r.0));
     Ok(Some(ElastomerRecord {
-        effective_modulus_mpa: at(0.5),
-        quartiles_mpa: [at(0.25), at(0.75)],
+        effective_modulus_mpa: summary.median,
+        quartiles_mpa: [summary.q1, summary.q3],
         samples: ratios.len(),
         measured: ratios.iter().filter(|r| r.1).count(),
     }))
