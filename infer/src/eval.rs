@@ -217,14 +217,20 @@ pub struct ForceStats {
     /// The mean total-force error as a percentage of the split's mean total force.
     pub force_magnitude_error_pct: f64,
     pub pressure_l1_kpa: Summary,
+    /// Frames with a force label whose predicted contact the solver could not settle: they
+    /// have no predicted force, so the figures above leave them out; counted here so that
+    /// they are not lost silently.
+    #[serde(default)]
+    pub unsolved_frames: usize,
 }
 
 impl ForceStats {
-    fn of(images: &[ImageErrors]) -> Option<Self> {
+    fn of(images: &[ImageErrors], unsolved_frames: usize) -> Option<Self> {
         let s = |f: fn(&ImageErrors) -> f64| Summary::of(images.iter().map(f));
         let force_n = s(|e| e.force_n);
         let magnitude = s(|e| e.force_magnitude_error_n);
-        (force_n.n > 0).then(|| ForceStats {
+        (force_n.n > 0 || unsolved_frames > 0).then(|| ForceStats {
+            unsolved_frames,
             force_magnitude_error_pct: 100.0 * magnitude.mean / force_n.mean,
             force_error_n: s(|e| e.force_error_n),
             force_magnitude_error_n: magnitude,
@@ -235,8 +241,12 @@ impl ForceStats {
 
     /// The split's force headline.
     pub fn headline(&self) -> String {
+        let unsolved = match self.unsolved_frames {
+            0 => String::new(),
+            n => format!("; {n} frames left out: their predicted contact could not be solved"),
+        };
         format!(
-            "total force error {:.3} N ({:.1} % of the mean {:.2} N), force vector error {:.3} N, pressure L1 {:.2} kPa",
+            "total force error {:.3} N ({:.1} % of the mean {:.2} N), force vector error {:.3} N, pressure L1 {:.2} kPa{unsolved}",
             self.force_magnitude_error_n.mean,
             self.force_magnitude_error_pct,
             self.force_n.mean,
@@ -261,7 +271,13 @@ impl SplitStats {
         std::array::from_fn(|k| (STAT_KEYS[k], all[k]))
     }
 
-    pub fn of(images: &[ImageErrors], skipped_frames: usize, gated_contact_frames: usize) -> Self {
+    /// `unsolved_force_frames`: see [`ForceStats::unsolved_frames`].
+    pub fn of(
+        images: &[ImageErrors],
+        skipped_frames: usize,
+        gated_contact_frames: usize,
+        unsolved_force_frames: usize,
+    ) -> Self {
         let s = |f: fn(&ImageErrors) -> f64| Summary::of(images.iter().map(f));
         SplitStats {
             contact_l1_mm: s(|e| e.contact_l1_mm),
@@ -273,7 +289,7 @@ impl SplitStats {
             zero_boundary_l1_mm: s(|e| e.zero_boundary_l1_mm),
             skipped_frames,
             gated_contact_frames,
-            force: ForceStats::of(images),
+            force: ForceStats::of(images, unsolved_force_frames),
         }
     }
 
@@ -331,7 +347,7 @@ pub fn evaluate_dataset(
     let (mut groups, mut force_groups) = (Vec::new(), Vec::new());
     for &split in splits {
         let name = split.name();
-        let (mut errors, mut skipped, mut gated_contact) = (Vec::new(), 0, 0);
+        let (mut errors, mut skipped, mut gated_contact, mut unsolved) = (Vec::new(), 0, 0, 0);
         let chosen: Vec<&SampleRecord> = manifest.split(Some(split)).collect();
         if chosen.is_empty() {
             anyhow::bail!("{}: the dataset has no {name} samples to evaluate", data.join("manifest.json").display());
@@ -367,6 +383,9 @@ pub fn evaluate_dataset(
                 gated_contact += usize::from(truth.depth_mm.iter().any(|&d| d > sensor::CONTACT_THRESHOLD_MM));
             }
             let mut e = ImageErrors::of(id, split, &pred.depth.depth_mm, &truth.depth_mm, &predictor.mask);
+            if predictor.has_force() && pred.force.is_none() && s.force_label().is_some() {
+                unsolved += 1;
+            }
             if let (Some(force), Some(wrench)) = (&pred.force, s.force_label()) {
                 let pressure = match &s.pressure {
                     Some(rel) => {
@@ -390,7 +409,7 @@ pub fn evaluate_dataset(
                 eprintln!("{name}: {}/{}", k + 1, chosen.len());
             }
         }
-        let s = SplitStats::of(&errors, skipped, gated_contact);
+        let s = SplitStats::of(&errors, skipped, gated_contact, unsolved);
         println!(
             "{name:5}: {} images, {}, L2 {:.5} mm^2; {skipped} frames answered by the contact gate, {gated_contact} of \
              them with contact",
@@ -530,12 +549,40 @@ mod tests {
 
     #[test]
     fn stat_keys_are_the_written_ones() {
-        let stats = SplitStats::of(&[ImageErrors::of(1, formats::Split::Test, &[0.0; 4], &[1.0; 4], &[true; 4])], 0, 0);
+        let stats =
+            SplitStats::of(&[ImageErrors::of(1, formats::Split::Test, &[0.0; 4], &[1.0; 4], &[true; 4])], 0, 0, 0);
         let json = serde_json::to_value(&stats).unwrap();
         let counts = ["skipped_frames", "gated_contact_frames"];
         let keys: Vec<&String> = json.as_object().unwrap().keys().filter(|k| !counts.contains(&k.as_str())).collect();
         assert_eq!(keys.len(), STAT_KEYS.len());
         assert!(STAT_KEYS.iter().all(|k| json[*k]["mean"].is_number() || json[*k]["n"] == 0), "{json}");
+    }
+
+    /// Frames whose predicted contact was not solved are counted beside the force figures,
+    /// which are taken over the solved frames only; a split of such frames alone still says so.
+    #[test]
+    fn unsolved_force_frames_are_counted_not_dropped() {
+        let wrench = |fz: f64| sensor::Wrench { force_n: [0.0, 0.0, fz], torque_nmm: [0.0; 3] };
+        let force = |fz: f64| crate::Force {
+            pressure: sensor::PressureMap { size_px: 2, pressure_kpa: vec![0.0; 4] },
+            wrench: wrench(fz),
+        };
+        let image = |id: u32| ImageErrors::of(id, formats::Split::Test, &[0.0; 4], &[1.0; 4], &[true; 4]);
+        let solved = [
+            image(1).with_force(&force(-9.0), &wrench(-10.0), None, &[true; 4]),
+            image(2).with_force(&force(-33.0), &wrench(-30.0), None, &[true; 4]),
+            image(3),
+        ];
+        let stats = SplitStats::of(&solved, 0, 0, 2).force.expect("force figures");
+        assert_eq!((stats.force_n.n, stats.unsolved_frames), (2, 2));
+        assert!((stats.force_magnitude_error_pct - 100.0 * 2.0 / 20.0).abs() < 1e-9, "{stats:?}");
+        assert!(stats.headline().contains("2 frames left out"), "{}", stats.headline());
+        let json = serde_json::to_value(&stats).unwrap();
+        assert_eq!(json["unsolved_frames"], 2);
+        assert!(!SplitStats::of(&solved, 0, 0, 0).force.unwrap().headline().contains("left out"));
+        let none = SplitStats::of(&[image(4)], 0, 0, 1).force.expect("an unsolved frame alone is reported");
+        assert_eq!((none.force_n.n, none.unsolved_frames), (0, 1));
+        assert!(SplitStats::of(&[image(4)], 0, 0, 0).force.is_none());
     }
 
     #[test]

@@ -19,6 +19,8 @@ pub enum InferError {
     FrameSize { width: u32, height: u32, crop: u32 },
     #[error(transparent)]
     Frame(#[from] sensor::frame::FrameError),
+    #[error("the elastomer's effective modulus must be a positive number of MPa, got {0}")]
+    Modulus(f64),
 }
 
 /// When a frame counts as untouched: fewer than `min_pixels` useful pixels differ from the
@@ -172,7 +174,7 @@ impl Predictor {
             balance_input: true,
             file,
         };
-        predictor.set_elastomer(predictor.file.elastomer.clone());
+        predictor.set_elastomer(predictor.file.elastomer.clone()).map_err(|e| bad(e.to_string()))?;
         predictor.reference = reference;
         let reference = predictor.reference.clone();
         predictor.set_tare(reference.as_ref())?;
@@ -281,11 +283,18 @@ impl Predictor {
 
     /// Solves each predicted contact with `elastomer` from now on (`None`: force only from a
     /// network's pressure output), e.g. a stiffness fitted to a force-torque sensor's readings.
-    pub fn set_elastomer(&mut self, elastomer: Option<model::bundle::ElastomerRecord>) {
+    /// An effective modulus that is not a positive finite number is refused, and nothing changes.
+    pub fn set_elastomer(&mut self, elastomer: Option<model::bundle::ElastomerRecord>) -> Result<(), InferError> {
+        if let Some(e) = &elastomer
+            && !(e.effective_modulus_mpa > 0.0 && e.effective_modulus_mpa.is_finite())
+        {
+            return Err(InferError::Modulus(e.effective_modulus_mpa));
+        }
         self.solver =
             elastomer.as_ref().map(|e| std::sync::Arc::new(ForceSolver::new(&self.file.sensor, &self.rays, e)));
         self.solve_force = elastomer.is_some();
         self.file.elastomer = elastomer;
+        Ok(())
     }
 
     /// The contact that `depth` shows (its pixels above the contact threshold) solved with the

@@ -175,7 +175,7 @@ fn a_fitted_elastomer_solves_the_force_on_the_predicted_depth() {
         measured: 0,
     };
     let e_star = 0.4;
-    p.set_elastomer(Some(record(e_star)));
+    p.set_elastomer(Some(record(e_star))).unwrap();
     assert!(p.has_force() && p.solve_force);
 
     // A 1 mm dent as a network might predict it, and a speck below the contact threshold.
@@ -191,9 +191,24 @@ fn a_fitted_elastomer_solves_the_force_on_the_predicted_depth() {
     assert_eq!(force.pressure.pressure_kpa, want.pressure_kpa);
     let f = force.wrench.force_magnitude_n();
     assert!(f > 0.1 && force.wrench.force_n[2] < -0.9 * f, "{:?}", force.wrench);
-    p.set_elastomer(Some(record(2.0 * e_star)));
+    p.set_elastomer(Some(record(2.0 * e_star))).unwrap();
     let twice = p.solved_force(&specked).unwrap().wrench.force_magnitude_n();
     assert!((twice / f - 2.0).abs() < 1e-9, "{twice} N against 2 x {f} N");
+    // A modulus no silicone has is refused, and the predictor keeps the one it had.
+    for bad in [0.0, -0.4, f64::NAN, f64::INFINITY] {
+        let err = p.set_elastomer(Some(record(bad))).unwrap_err().to_string();
+        assert!(err.contains("effective modulus"), "{err}");
+        assert_eq!(p.file.elastomer.as_ref().unwrap().effective_modulus_mpa, 2.0 * e_star);
+        assert_eq!(p.solved_force(&specked).unwrap().wrench.force_magnitude_n(), twice);
+    }
+    // The same number in a bundle's file stops its load, naming the file.
+    let text = std::fs::read_to_string(dir.join(model::bundle::BUNDLE_JSON)).unwrap();
+    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    json["elastomer"] = serde_json::to_value(record(-1.0)).unwrap();
+    std::fs::write(dir.join(model::bundle::BUNDLE_JSON), json.to_string()).unwrap();
+    let err = Predictor::load(&dir, &model::backend::default_device()).err().expect("refused").to_string();
+    assert!(err.contains("bundle.json") && err.contains("effective modulus"), "{err}");
+    std::fs::write(dir.join(model::bundle::BUNDLE_JSON), text).unwrap();
 
     // Predictions solve the network's own depth, frame by frame; the gate's answer has none.
     let pred = p.predict_network_all(std::slice::from_ref(&frame)).unwrap().remove(0);

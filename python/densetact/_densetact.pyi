@@ -59,6 +59,14 @@ class Predictor:
         """Reads frames against this untouched frame from now on (input, gate, tare)."""
     def has_contact(self, frame: Frame) -> bool:
         """Whether the contact gate sees contact in ``frame``."""
+    def set_elastomer(self, effective_modulus_mpa: Optional[float]) -> None:
+        """Solves each predicted contact for force with this E / (1 - nu^2) (MPa) from now on;
+        None: force only from a network with the force output. Raises ValueError unless > 0."""
+    def solve_force(self, depth_mm: npt.NDArray[np.float32]) -> Optional[Force]:
+        """The contact a crop-sized depth map shows, solved with the elastomer; None if unsettled."""
+    @property
+    def effective_modulus_mpa(self) -> Optional[float]:
+        """The elastomer predictions are solved with (bundle's or ``set_elastomer``'s), or None."""
     @property
     def bundle(self) -> str: ...
     @property

@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 use image::RgbImage;
-use numpy::{PyArray1, PyArray2};
+use numpy::{PyArray1, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use sensor::CONTACT_THRESHOLD_MM;
 
@@ -100,19 +101,21 @@ impl Predictor {
         }
     }
 
+    fn force_to_python(py: Python<'_>, f: infer::Force) -> PyResult<Py<Force>> {
+        let n = f.pressure.size_px as usize;
+        Py::new(
+            py,
+            Force {
+                pressure_kpa: plane(py, f.pressure.pressure_kpa, [n, n]).unbind(),
+                force_n: PyArray1::from_slice(py, &f.wrench.force_n).unbind(),
+                torque_nmm: PyArray1::from_slice(py, &f.wrench.torque_nmm).unbind(),
+            },
+        )
+    }
+
     fn to_python(py: Python<'_>, a: Answer) -> PyResult<Prediction> {
         let n = a.size_px;
-        let force = match a.force {
-            Some(f) => Some(Py::new(
-                py,
-                Force {
-                    pressure_kpa: plane(py, f.pressure.pressure_kpa, [n, n]).unbind(),
-                    force_n: PyArray1::from_slice(py, &f.wrench.force_n).unbind(),
-                    torque_nmm: PyArray1::from_slice(py, &f.wrench.torque_nmm).unbind(),
-                },
-            )?),
-            None => None,
-        };
+        let force = a.force.map(|f| Self::force_to_python(py, f)).transpose()?;
         let points = a.points_mm.len() / 3;
         Ok(Prediction {
             depth_mm: plane(py, a.depth_mm, [n, n]).unbind(),
@@ -203,6 +206,56 @@ impl Predictor {
     fn has_contact(&self, py: Python<'_>, frame: &Bound<'_, PyAny>) -> PyResult<bool> {
         let frame = frame_arg(frame, "frame")?;
         self.with(py, |p| Ok(p.has_contact(&Self::crop(p, frame, "frame")?)))
+    }
+
+    /// Solves each predicted contact for force from now on with an elastomer of effective
+    /// modulus `effective_modulus_mpa` (E / (1 - nu^2), MPa), e.g. fitted to a force-torque
+    /// sensor's readings; predictions then carry `force`. None: force only from a network with
+    /// the force output. A modulus that is not a positive number raises ValueError and changes
+    /// nothing.
+    fn set_elastomer(&self, py: Python<'_>, effective_modulus_mpa: Option<f64>) -> PyResult<()> {
+        let record = effective_modulus_mpa.map(|e| model::bundle::ElastomerRecord {
+            effective_modulus_mpa: e,
+            quartiles_mpa: [e, e],
+            samples: 0,
+            measured: 0,
+        });
+        py.detach(|| self.lock().set_elastomer(record)).map_err(|e| match e {
+            infer::InferError::Modulus(_) => PyValueError::new_err(e.to_string()),
+            e => error(e),
+        })
+    }
+
+    /// The effective modulus (MPa) each predicted contact is solved with: the bundle's fitted
+    /// elastomer or `set_elastomer`'s; None when force comes only from the network, or not at all.
+    #[getter]
+    fn effective_modulus_mpa(&self) -> Option<f64> {
+        self.lock().file.elastomer.as_ref().map(|e| e.effective_modulus_mpa)
+    }
+
+    /// The contact that `depth_mm` (float32, the crop's shape, e.g. a prediction's or a
+    /// label's) shows, solved with the elastomer: pixels above `CONTACT_THRESHOLD_MM` pressed,
+    /// the rest free. None where the solve does not settle (a map no indenter could press).
+    /// Raises DenseTactError without an elastomer (see `set_elastomer`).
+    fn solve_force(&self, py: Python<'_>, depth_mm: PyReadonlyArray2<'_, f32>) -> PyResult<Option<Py<Force>>> {
+        let n = self.crop_size_px() as usize;
+        if depth_mm.shape() != [n, n] {
+            return Err(PyValueError::new_err(format!(
+                "depth_mm must be the crop's {n}x{n}, got shape {:?}",
+                depth_mm.shape()
+            )));
+        }
+        let depth = sensor::DepthMap { size_px: n as u32, depth_mm: depth_mm.as_array().iter().copied().collect() };
+        let force = py.detach(|| {
+            let p = self.lock();
+            match p.file.elastomer {
+                Some(_) => Ok(p.solved_force(&depth)),
+                None => Err(error(anyhow::anyhow!(
+                    "this predictor has no elastomer to solve with (its bundle records none): call set_elastomer first"
+                ))),
+            }
+        })?;
+        force.map(|f| Self::force_to_python(py, f)).transpose()
     }
 
     /// Whether predictions are tared (see `retare`).

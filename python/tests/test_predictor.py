@@ -121,3 +121,46 @@ def test_threads_share_a_predictor(bundle, cases):
     assert not errors and len(results) == 3
     for got in results.values():
         assert all(np.array_equal(a, b) for a, b in zip(got, expected))
+
+
+def test_an_elastomer_set_from_python_solves_the_predicted_contact(bundle, cases):
+    p = densetact.Predictor(bundle)
+    n = p.crop_size_px
+    zeros = np.zeros((n, n), np.float32)
+    assert p.effective_modulus_mpa is None and not p.has_force
+    with pytest.raises(densetact.DenseTactError, match="set_elastomer"):
+        p.solve_force(zeros)
+
+    # A round dent at the crop's centre, 0.8 mm deep, as a network might predict it.
+    y, x = np.mgrid[0:n, 0:n]
+    r2 = ((x - n / 2) ** 2 + (y - n / 2) ** 2) / (n / 12) ** 2
+    dent = np.where(p.mask, 0.8 * np.clip(1 - r2, 0, None), 0).astype(np.float32)
+    p.set_elastomer(0.2)
+    assert p.has_force and p.effective_modulus_mpa == 0.2
+    force = p.solve_force(dent)
+    f = np.linalg.norm(force.force_n)
+    assert f > 0.05 and force.force_n[2] < -0.9 * f, force.force_n
+    assert force.pressure_kpa.shape == (n, n) and force.pressure_kpa.dtype == np.float32
+    assert not force.pressure_kpa[dent <= densetact.CONTACT_THRESHOLD_MM].any(), "no pressure off the contact"
+    assert not np.linalg.norm(p.solve_force(zeros).force_n), "no contact, no force"
+    # Pressure scales with the modulus; the contact does not move.
+    p.set_elastomer(0.4)
+    twice = p.solve_force(dent)
+    np.testing.assert_allclose(twice.force_n, 2 * force.force_n, rtol=1e-9)
+    assert np.array_equal(twice.pressure_kpa > 0, force.pressure_kpa > 0)
+
+    # Predictions carry the force solved on their own depth.
+    got = p.predict(densetact.read_frame(cases[0]["frame"]), always=True)
+    again = p.solve_force(got.depth_mm)
+    assert np.array_equal(got.force.force_n, again.force_n)
+    assert np.array_equal(got.force.pressure_kpa, again.pressure_kpa)
+
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="effective modulus"):
+            p.set_elastomer(bad)
+    assert p.effective_modulus_mpa == 0.4, "a refused modulus changes nothing"
+    with pytest.raises(ValueError, match="crop"):
+        p.solve_force(zeros[:-1])
+    p.set_elastomer(None)
+    assert not p.has_force and p.effective_modulus_mpa is None
+    assert p.predict(densetact.read_frame(cases[0]["frame"]), always=True).force is None

@@ -164,7 +164,7 @@ fn from_depth(bundle: &std::path::Path, data: &std::path::Path) -> Result<()> {
         }
     };
     println!("{}", train::elastomer::report_line(&elastomer));
-    predictor.set_elastomer(Some(elastomer));
+    predictor.set_elastomer(Some(elastomer))?;
     let has_head = predictor.file.model.pressure;
     let (mut truth_n, mut head, mut solved, mut ms, mut ms_off) = (vec![], vec![], vec![], vec![], vec![]);
     for s in manifest.split(Some(Split::Test)) {
