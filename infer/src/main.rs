@@ -39,9 +39,8 @@ enum Command {
         /// Output folder: stats.json, errors.csv, violin.svg.
         #[arg(long)]
         out: PathBuf,
-        /// Keep the network's own reading of the reference frame (by default subtracted).
-        #[arg(long)]
-        no_tare: bool,
+        #[command(flatten)]
+        loading: Loading,
     },
     /// Frames as they come: depth, contact and point clouds per frame, stale frames dropped
     /// when the network falls behind, throughput and latency percentiles at the end (Ctrl-C
@@ -101,16 +100,35 @@ fn bench(bundle: PathBuf, image: Option<PathBuf>, device: String, repeats: usize
     Ok(())
 }
 
-/// Loads a bundle, tared on its reference image unless `no_tare`.
-fn load(bundle: &std::path::Path, device: &burn::tensor::Device, no_tare: bool) -> Result<Predictor> {
+/// How `predict`, `stream` and `eval` take their bundle.
+#[derive(clap::Args)]
+struct Loading {
+    /// Keep the network's own reading of the reference frame (by default subtracted).
+    #[arg(long)]
+    no_tare: bool,
+    /// Solve each predicted contact for force with this elastomer, E / (1 - nu^2) in MPa (from
+    /// an indentation test or a force-torque sensor, say), instead of the one the bundle
+    /// records; a depth-only bundle then reports force too.
+    #[arg(long, value_name = "MPA", allow_negative_numbers = true)]
+    effective_modulus_mpa: Option<f64>,
+}
+
+/// Loads a bundle, tared on its reference image unless `--no-tare`, with the elastomer
+/// `--effective-modulus-mpa` names.
+fn load(bundle: &std::path::Path, device: &burn::tensor::Device, loading: &Loading) -> Result<Predictor> {
     let mut predictor = Predictor::load(bundle, device)?;
-    if no_tare {
+    if loading.no_tare {
         predictor.set_tare(None)?;
+    }
+    if let Some(e) = loading.effective_modulus_mpa {
+        let record =
+            model::bundle::ElastomerRecord { effective_modulus_mpa: e, quartiles_mpa: [e, e], samples: 0, measured: 0 };
+        predictor.set_elastomer(Some(record)).context("--effective-modulus-mpa")?;
     }
     Ok(predictor)
 }
 
-fn eval(bundle: PathBuf, data: PathBuf, split: String, out: PathBuf, no_tare: bool) -> Result<()> {
+fn eval(bundle: PathBuf, data: PathBuf, split: String, out: PathBuf, loading: Loading) -> Result<()> {
     use formats::Split;
     let splits: Vec<Split> = match split.as_str() {
         "all" => vec![Split::Train, Split::Test],
@@ -118,14 +136,14 @@ fn eval(bundle: PathBuf, data: PathBuf, split: String, out: PathBuf, no_tare: bo
         "test" => vec![Split::Test],
         other => anyhow::bail!("--split must be train, test or all, got {other:?}"),
     };
-    let predictor = load(&bundle, &model::backend::default_device(), no_tare)?;
+    let predictor = load(&bundle, &model::backend::default_device(), &loading)?;
     infer::eval::evaluate_dataset(&predictor, &data, &splits, &out)?;
     println!("wrote {}/stats.json, errors.csv, violin.svg", out.display());
     Ok(())
 }
 
 fn predict(args: PredictArgs) -> Result<()> {
-    let PredictArgs { bundle, image, depth_out, depth_npy, colour_out, ply, pressure_out, always, no_tare } = args;
+    let PredictArgs { bundle, image, depth_out, depth_npy, colour_out, ply, pressure_out, always, loading } = args;
     // Outputs are checked before any work: none may be an input, none named twice.
     let outputs: Vec<&std::path::Path> =
         [&depth_out, &depth_npy, &colour_out, &ply, &pressure_out].into_iter().flatten().map(|p| p.as_path()).collect();
@@ -134,7 +152,7 @@ fn predict(args: PredictArgs) -> Result<()> {
         formats::output::check_file(out, &inputs)?;
     }
     formats::output::check_distinct(&outputs)?;
-    let predictor = load(&bundle, &model::backend::default_device(), no_tare)?;
+    let predictor = load(&bundle, &model::backend::default_device(), &loading)?;
     if pressure_out.is_some() && !predictor.has_force() {
         anyhow::bail!(
             "{}: this bundle has no force output, so there is no pressure to write (it records no elastomer to \
@@ -224,9 +242,8 @@ struct PredictArgs {
     /// Run the network even when the frame shows no contact.
     #[arg(long)]
     always: bool,
-    /// Keep the network's own reading of the reference frame (by default subtracted).
-    #[arg(long)]
-    no_tare: bool,
+    #[command(flatten)]
+    loading: Loading,
 }
 
 /// What `infer stream` is told.
@@ -261,9 +278,8 @@ struct StreamArgs {
     /// flex (CPU) or wgpu.
     #[arg(long, default_value = "flex")]
     device: String,
-    /// Keep the network's own reading of the reference frame (by default subtracted).
-    #[arg(long)]
-    no_tare: bool,
+    #[command(flatten)]
+    loading: Loading,
     /// Let the reference frame follow the camera, slowly, from frames with no contact (2 s
     /// after the last contact, averaged over 5 s, a quarter of the way each time; a contact
     /// never enters it). By default it stays the bundle's, and each frame's global drift is
@@ -390,7 +406,7 @@ fn stream(args: StreamArgs) -> Result<()> {
         idle_exit_s,
         poll_ms,
         device,
-        no_tare,
+        loading,
         follow_reference,
         ros2,
         view,
@@ -406,7 +422,7 @@ fn stream(args: StreamArgs) -> Result<()> {
         formats::output::check_dir(out, formats::output::OutputKind::Stream, &inputs)?;
     }
     let dev = model::backend::working_device(&device)?;
-    let predictor = load(&bundle, &dev, no_tare)?;
+    let predictor = load(&bundle, &dev, &loading)?;
     let source = stream_source(&source, fps, poll_ms, idle_exit_s, &predictor.file.sensor)?;
     let mut folder = out.as_deref().map(FolderSink::new).transpose()?;
     #[cfg(feature = "view")]
@@ -464,7 +480,7 @@ fn main() -> ExitCode {
     sensor::alloc::keep_freed_memory();
     let result = match Cli::parse().command {
         Command::Predict(args) => predict(args),
-        Command::Eval { bundle, data, split, out, no_tare } => eval(bundle, data, split, out, no_tare),
+        Command::Eval { bundle, data, split, out, loading } => eval(bundle, data, split, out, loading),
         Command::Stream(args) => stream(args),
         Command::Bench { bundle, image, device, repeats } => bench(bundle, image, device, repeats),
     };

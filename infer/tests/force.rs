@@ -59,7 +59,8 @@ fn a_uniform_pressure_output_gives_the_caps_projected_force() {
     assert!(back.pressure_kpa.iter().zip(&force.pressure.pressure_kpa).all(|(a, b)| (a - b).abs() <= 0.05));
 }
 
-/// A depth-only bundle has no pressure to write, and says so; its predictions carry no force.
+/// A depth-only bundle has no pressure to write, and says so; its predictions carry no force,
+/// unless the command names an elastomer to solve them with.
 #[test]
 fn a_depth_only_bundle_refuses_a_pressure_output() {
     let tmp = tempfile::tempdir().unwrap();
@@ -79,6 +80,38 @@ fn a_depth_only_bundle_refuses_a_pressure_output() {
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(!r.status.success() && err.contains("no force output"), "{err}");
     assert!(!out.exists());
+
+    // Given an elastomer on the command line, the same bundle solves the predicted contact
+    // with it: the map and the force the library gives with that elastomer.
+    let predict_with = |modulus: &str| {
+        Command::new(env!("CARGO_BIN_EXE_infer"))
+            .args(["predict", "--bundle", dir.to_str().unwrap(), "--image", image.to_str().unwrap()])
+            .args(["--pressure-out", out.to_str().unwrap(), "--effective-modulus-mpa", modulus])
+            .output()
+            .unwrap()
+    };
+    let r = predict_with("0.4");
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let mut p = p;
+    p.set_elastomer(Some(model::bundle::ElastomerRecord {
+        effective_modulus_mpa: 0.4,
+        quartiles_mpa: [0.4, 0.4],
+        samples: 0,
+        measured: 0,
+    }))
+    .unwrap();
+    let force = p.predict_all(&frame).unwrap().force.expect("solved force");
+    let stdout = String::from_utf8_lossy(&r.stdout);
+    assert!(stdout.contains(&format!("force {:.3} N", force.wrench.force_magnitude_n())), "{stdout}");
+    let back = sensor::PressureMap::load_png(&out).unwrap();
+    assert!(back.pressure_kpa.iter().zip(&force.pressure.pressure_kpa).all(|(a, b)| (a - b).abs() <= 0.05));
+    std::fs::remove_file(&out).unwrap();
+    for bad in ["-1", "0", "nan"] {
+        let r = predict_with(bad);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success() && err.contains("--effective-modulus-mpa") && err.contains("positive"), "{err}");
+        assert!(!out.exists());
+    }
 }
 
 /// `eval` of a force bundle on samples with force labels adds the force figures: per image in
