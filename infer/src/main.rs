@@ -121,9 +121,7 @@ fn load(bundle: &std::path::Path, device: &burn::tensor::Device, loading: &Loadi
         predictor.set_tare(None)?;
     }
     if let Some(e) = loading.effective_modulus_mpa {
-        let record =
-            model::bundle::ElastomerRecord { effective_modulus_mpa: e, quartiles_mpa: [e, e], samples: 0, measured: 0 };
-        predictor.set_elastomer(Some(record)).context("--effective-modulus-mpa")?;
+        predictor.set_elastomer(Some(model::bundle::ElastomerRecord::given(e))).context("--effective-modulus-mpa")?;
     }
     Ok(predictor)
 }

@@ -93,13 +93,7 @@ fn a_depth_only_bundle_refuses_a_pressure_output() {
     let r = predict_with("0.4");
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let mut p = p;
-    p.set_elastomer(Some(model::bundle::ElastomerRecord {
-        effective_modulus_mpa: 0.4,
-        quartiles_mpa: [0.4, 0.4],
-        samples: 0,
-        measured: 0,
-    }))
-    .unwrap();
+    p.set_elastomer(Some(model::bundle::ElastomerRecord::given(0.4))).unwrap();
     let force = p.predict_all(&frame).unwrap().force.expect("solved force");
     let stdout = String::from_utf8_lossy(&r.stdout);
     assert!(stdout.contains(&format!("force {:.3} N", force.wrench.force_magnitude_n())), "{stdout}");
@@ -201,12 +195,7 @@ fn a_fitted_elastomer_solves_the_force_on_the_predicted_depth() {
     let renderer = common::bundle(&dir);
     let mut p = Predictor::load(&dir, &model::backend::default_device()).unwrap();
     assert!(!p.has_force() && p.solved_force(&sensor::DepthMap::zeros(p.file.sensor.crop_size_px)).is_none());
-    let record = |e: f64| model::bundle::ElastomerRecord {
-        effective_modulus_mpa: e,
-        quartiles_mpa: [e, e],
-        samples: 1,
-        measured: 0,
-    };
+    let record = model::bundle::ElastomerRecord::given;
     let e_star = 0.4;
     p.set_elastomer(Some(record(e_star))).unwrap();
     assert!(p.has_force() && p.solve_force);

@@ -90,6 +90,14 @@ pub struct ElastomerRecord {
     pub measured: usize,
 }
 
+impl ElastomerRecord {
+    /// An elastomer given rather than fitted here (an indentation test, a force-torque fit made
+    /// elsewhere): no samples, its quartiles the value itself.
+    pub fn given(effective_modulus_mpa: f64) -> Self {
+        ElastomerRecord { effective_modulus_mpa, quartiles_mpa: [effective_modulus_mpa; 2], samples: 0, measured: 0 }
+    }
+}
+
 /// A bundle's contact gate and its tally on the training data's splits.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct GateRecord {

@@ -214,12 +214,7 @@ impl Predictor {
     /// the force output. A modulus that is not a positive number raises ValueError and changes
     /// nothing.
     fn set_elastomer(&self, py: Python<'_>, effective_modulus_mpa: Option<f64>) -> PyResult<()> {
-        let record = effective_modulus_mpa.map(|e| model::bundle::ElastomerRecord {
-            effective_modulus_mpa: e,
-            quartiles_mpa: [e, e],
-            samples: 0,
-            measured: 0,
-        });
+        let record = effective_modulus_mpa.map(model::bundle::ElastomerRecord::given);
         py.detach(|| self.lock().set_elastomer(record)).map_err(|e| match e {
             infer::InferError::Modulus(_) => PyValueError::new_err(e.to_string()),
             e => error(e),
