@@ -28,11 +28,13 @@ use sensor::gate::GateFrame;
 use sensor::{DepthMap, Sensor};
 use serde::{Deserialize, Serialize};
 
-use crate::generate::{build_scene, write_force_label};
+use crate::generate::{build_scene, build_scene_in, write_force_label};
 use crate::kit::{Kit, Split, Trial};
 use crate::mechanics::{Dome, Material};
 use crate::raycast::{RayBundle, RayCaster, Skipping};
+use crate::register::{self, Registration};
 use crate::resumable;
+use crate::rig::RigOffsets;
 use crate::touch::{Z_ZERO_COLUMN, ZFrom, ZReading, first_touch_mm};
 
 /// What a bad row of the log does to the run.
@@ -44,6 +46,11 @@ pub enum OnBadRow {
     /// Leave it out; the report counts and lists them.
     Skip,
 }
+
+/// A labelled contact shallower than this (mm) may not show in the image at all (measured on
+/// simulated sweeps: the change rises out of the noise about 0.07 to 0.1 mm past first touch):
+/// the slip check's gate is fitted without such frames.
+const VISIBLE_DEPTH_MM: f32 = 0.15;
 
 /// Tilts beyond this (degrees) would turn the indicator's base towards the sensor.
 pub const MAX_TILT_DEG: f32 = 90.0;
@@ -64,6 +71,9 @@ pub struct Labeller<'a> {
     /// Label only this share of the rows (`--shard K/N`: rows whose 0-based position in the log
     /// is K modulo N); `None`: all.
     pub shard: Option<formats::Shard>,
+    /// Whether the rig's offsets estimated from the log's z sweeps are applied to the labels
+    /// (`--register`); without it they are estimated and reported only.
+    pub register: bool,
 }
 
 /// A labelling as `dataset label` (or the Python package's `label_session`) asks for it, by
@@ -80,6 +90,8 @@ pub struct LabelRequest {
     pub z: ZReading,
     pub force: Option<Material>,
     pub shard: Option<formats::Shard>,
+    /// See [`Labeller::register`].
+    pub register: bool,
     /// Whether errors name the command line's flags (`--kit`) or the arguments' plain names.
     pub flags: bool,
 }
@@ -102,6 +114,7 @@ impl LabelRequest {
             z: self.z,
             force: self.force,
             shard: self.shard,
+            register: self.register,
         }
         .run()
     }
@@ -124,6 +137,10 @@ pub struct LabelReport {
     pub slips: Vec<(usize, String, usize)>,
     /// How the log's z was read.
     pub z: ZReading,
+    /// The rig's offsets seen in the log's z sweeps (`None`: the log has none), and whether
+    /// they were applied.
+    pub registration: Option<Registration>,
+    pub registered: bool,
 }
 
 /// One row ready to label: its id in the dataset, the trial and the row.
@@ -205,6 +222,20 @@ impl Labeller<'_> {
             )
         })?;
         let reference = read_crop(&reference_path, self.sensor)?;
+        // From the whole log whatever the shard, so that every share applies the same offsets.
+        let registration = if register::has_sweeps(self.kit, &log.rows) {
+            Some(register::register(&self.session, self.kit, self.sensor, &log.rows, &reference)?)
+        } else if self.register {
+            bail!(
+                "{}: --register needs z sweeps in the log (rows of one trial, tilts and B at {} or more z), and it \
+                 has none",
+                log.path.display(),
+                register::MIN_SWEEP_FRAMES
+            );
+        } else {
+            None
+        };
+        let applied = registration.as_ref().filter(|_| self.register);
         let params = LabelParams {
             session: self.session.display().to_string(),
             kit: self.kit.source.clone(),
@@ -219,7 +250,12 @@ impl Labeller<'_> {
             force: self.force,
             shard: self.shard,
         };
-        let file = LabelFile { format_version: DATASET_FORMAT_VERSION, sensor: self.sensor.clone(), params: source };
+        let file = LabelFile {
+            format_version: DATASET_FORMAT_VERSION,
+            sensor: self.sensor.clone(),
+            params: source,
+            registration: applied.cloned(),
+        };
         let kit = std::path::Path::new(&self.kit.source);
         let mut inputs = vec![self.session.as_path()];
         inputs.extend((self.kit.source != "procedural").then_some(kit));
@@ -264,7 +300,7 @@ impl Labeller<'_> {
         // run whatever --on-bad-row says.
         let outcomes = resumable::make_all(&ids, "labelling", |k| {
             let job = todo[k as usize];
-            self.label_row(job, &rays, &mask, &reference, dome.as_ref())
+            self.label_row(job, &rays, &mask, &reference, dome.as_ref(), applied.map(|r| &r.offsets))
         })?;
         let mut records = done;
         let mut labelled = 0;
@@ -300,7 +336,14 @@ impl Labeller<'_> {
                 Ok((s, GateFrame::labelled(&image, &reference, &mask, &depth)))
             })
             .collect::<Result<_>>()?;
-        let pressed: Vec<GateFrame> = measured.iter().filter(|m| m.1.contact).map(|m| m.1.clone()).collect();
+        // Contacts too shallow to show in any image (the first frames past a sweep's touch) are
+        // left out of the fit: kept open for, they would open it on noise, and every untouched
+        // frame would read as a slip.
+        let pressed: Vec<GateFrame> = measured
+            .iter()
+            .filter(|m| m.1.contact && m.0.stats.max_depth_mm >= VISIBLE_DEPTH_MM)
+            .map(|m| m.1.clone())
+            .collect();
         let gate = sensor::gate::fit(&pressed);
         let (mut no_contact, mut slips) = (Vec::new(), Vec::new());
         for (s, frame) in measured.iter().filter(|m| !m.1.contact) {
@@ -333,6 +376,8 @@ impl Labeller<'_> {
             no_contact,
             slips,
             z: self.z,
+            registered: applied.is_some(),
+            registration,
         })
     }
 
@@ -346,6 +391,7 @@ impl Labeller<'_> {
         mask: &[bool],
         reference: &RgbImage,
         dome: Option<&Dome>,
+        rig: Option<&RigOffsets>,
     ) -> Result<Result<SampleRecord, anyhow::Error>> {
         let c = &job.capture;
         let frame_path = self.session.join(&c.frame);
@@ -362,7 +408,14 @@ impl Labeller<'_> {
             Ok(crop) => crop,
             Err(e) => return Ok(Err(e.into())),
         };
-        let scene = match self.travel(job, rays).and_then(|pose| build_scene(self.kit, job.trial, pose)) {
+        // A registered rig: the pose it truly had, in the mount it truly has.
+        let pressed = |pose: RigPose| match rig {
+            Some(rig) => {
+                build_scene_in(self.kit, job.trial, rig.true_pose(job.trial.split, job.trial.number, pose), rig.mount())
+            }
+            None => build_scene(self.kit, job.trial, pose),
+        };
+        let scene = match self.travel(job, rays).and_then(pressed) {
             Ok(scene) => scene,
             Err(e) => return Ok(Err(e)),
         };
@@ -435,6 +488,10 @@ pub struct LabelFile {
     pub format_version: u32,
     pub sensor: Sensor,
     pub params: LabelSource,
+    /// The rig's offsets estimated from the log's sweeps and applied to the labels
+    /// (`--register`; absent: the log's poses as they are).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub registration: Option<Registration>,
 }
 
 /// The session and the kit a labelled folder is made from (absolute paths, so that a resume
@@ -490,6 +547,7 @@ pub fn report_lines(r: &LabelReport) -> Vec<String> {
         ),
         r.z.describe(),
     ];
+    lines.extend(registration_lines(r.registration.as_ref(), r.registered));
     for (split, s) in &r.manifest.summary {
         lines.push(format!(
             "  {:5}: {:6} samples, contact {:5.1}% of useful pixels, mean contact depth {:.3} mm",
@@ -517,6 +575,21 @@ pub fn report_lines(r: &LabelReport) -> Vec<String> {
             list_lines(r.no_contact.iter().map(|(l, _)| *l))
         ));
     }
+    // Most untouched frames "slipping" says the check cannot tell them from the labelled contact
+    // frames (contacts the camera hardly shows: a broad shell pressed concentric with the dome,
+    // or a log off in z), not that the log slipped that often.
+    if r.slips.len() > SLIPS_LISTED.max(r.no_contact.len() / 5) {
+        lines.push(format!(
+            "warning: {} of the {} frames without contact in their ground truth differ from the reference as much as \
+             the least visible labelled contact frame: some labelled contacts do not show in their frames (a shell \
+             pressed flat, or the log off in z: see the rig offsets above), so the slip check cannot single out \
+             slips (lines {})",
+            r.slips.len(),
+            r.no_contact.len(),
+            list_lines(r.slips.iter().map(|(l, _, _)| *l))
+        ));
+        return lines;
+    }
     for (line, frame, px) in &r.slips {
         lines.push(format!(
             "warning: line {line} ({frame}): the ground truth has no contact but {px}+ pixels differ from the \
@@ -525,6 +598,82 @@ pub fn report_lines(r: &LabelReport) -> Vec<String> {
     }
     lines
 }
+
+/// Beyond these, offsets the labels did not apply are warned about: z (mm), x and y (mm),
+/// tilts and B (degrees). 0.05 mm of z is about a third of the network's contact error.
+const TOLERATED: [f32; 3] = [0.05, 0.05, 0.1];
+
+/// The report's account of the rig's offsets seen in the log's sweeps.
+fn registration_lines(reg: Option<&Registration>, applied: bool) -> Vec<String> {
+    let Some(reg) = reg else {
+        return vec!["rig offsets not checked: the log has no z sweeps (see --register)".into()];
+    };
+    let (o, sd) = (&reg.offsets, &reg.sd);
+    let how =
+        if applied { "applied to the labels (--register)" } else { "NOT applied (label with --register to apply)" };
+    let mut lines = vec![format!(
+        "rig offsets from {} z sweeps, {how}: x {:+.3} +- {:.3} mm, y {:+.3} +- {:.3} mm, tilt about x {:+.2} +- {:.2} deg, \
+         about y {:+.2} +- {:.2} deg, B zero {:+.2} +- {:.2} deg (one sd)",
+        reg.sweeps,
+        o.x_mm,
+        sd.x_mm,
+        o.y_mm,
+        sd.y_mm,
+        o.tilt_x_deg,
+        sd.tilt_x_deg,
+        o.tilt_y_deg,
+        sd.tilt_y_deg,
+        o.b_zero_deg,
+        sd.b_zero_deg
+    )];
+    let zeros: Vec<String> = o
+        .z_zero_by_trial_mm
+        .iter()
+        .map(|(t, z)| format!("{t} {z:+.3} +- {:.3}", sd.z_zero_by_trial_mm.get(t).copied().unwrap_or(0.0)))
+        .collect();
+    lines.push(format!("  z zeros (mm, added to the log's z): {}", zeros.join(", ")));
+    if !reg.unswept_trials.is_empty() {
+        lines.push(format!("  trials with no sweep used (z zero as logged): {}", reg.unswept_trials.join(", ")));
+    }
+    for why in &reg.left_out {
+        lines.push(format!("  sweep left out: {why}"));
+    }
+    if !applied {
+        // Beyond the tolerance by more than two standard deviations: really there.
+        let beyond = |v: f32, s: f32, tol: f32| v.abs() > tol + 2.0 * s;
+        let mut seen = Vec::new();
+        for (t, &z) in &o.z_zero_by_trial_mm {
+            if beyond(z, sd.z_zero_by_trial_mm.get(t).copied().unwrap_or(0.0), TOLERATED[0]) {
+                seen.push(format!("{t} z zero {z:+.3} mm"));
+            }
+        }
+        for (name, v, s, tol) in [
+            ("x", o.x_mm, sd.x_mm, TOLERATED[1]),
+            ("y", o.y_mm, sd.y_mm, TOLERATED[1]),
+            ("tilt about x", o.tilt_x_deg, sd.tilt_x_deg, TOLERATED[2]),
+            ("tilt about y", o.tilt_y_deg, sd.tilt_y_deg, TOLERATED[2]),
+            ("B zero", o.b_zero_deg, sd.b_zero_deg, TOLERATED[2]),
+        ] {
+            if beyond(v, s, tol) {
+                seen.push(format!("{name} {v:+.3}"));
+            }
+        }
+        if !seen.is_empty() {
+            lines.push(format!(
+                "warning: the frames say the log's poses are off beyond what the labels bear ({} mm of z, {} mm of x/y, \
+                 {} degrees): {}; label with --register to correct them",
+                TOLERATED[0],
+                TOLERATED[1],
+                TOLERATED[2],
+                seen.join(", ")
+            ));
+        }
+    }
+    lines
+}
+
+/// Up to this many slips are listed one a line (more where a fifth of the untouched frames is).
+const SLIPS_LISTED: usize = 5;
 
 /// Line numbers for a report: the first twenty, then how many more.
 fn list_lines(lines: impl ExactSizeIterator<Item = usize>) -> String {

@@ -22,6 +22,7 @@ pub mod procedural;
 // AVX2 kernels in some of their modules (which allow unsafe code by name), reached only
 // through `simd::Avx2` tokens (or `simd`'s own dispatch).
 pub mod raycast;
+pub mod register;
 pub mod render;
 mod resumable;
 pub mod rig;

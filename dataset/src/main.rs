@@ -87,6 +87,11 @@ struct LabelArgs {
     /// modulo N), one task of a job array; `dataset merge` joins the shares.
     #[arg(long)]
     shard: Option<formats::Shard>,
+    /// Estimate the rig's offsets (each trial's z zero, the sensor's x, y and tilts in its
+    /// mount, B's zero) from the log's z sweeps and apply them to the labels. Without it, a log
+    /// with sweeps still has them estimated, reported and warned about.
+    #[arg(long)]
+    register: bool,
     /// Depth labels only: no pressure maps or wrenches.
     #[arg(long)]
     no_force_labels: bool,
@@ -168,6 +173,15 @@ struct GenerateArgs {
     /// in its mount, B's zero within +-2 degrees; the truth in .simulation/rig.json).
     #[arg(long, requires = "session")]
     rig_errors: Option<u64>,
+    /// With --session: press in z sweeps of this many frames (--count frames in all): each
+    /// sweep's trial, tilts and B drawn as a sample's, its z from 1 mm above the logged first
+    /// touch down in steps of --sweep-step-mm, as a rig presses a shape; the frames before the
+    /// touch are untouched, and where the image first changes tells the rig's z zero.
+    #[arg(long, requires = "session", value_parser = clap::value_parser!(u32).range(2..))]
+    sweep_frames: Option<u32>,
+    /// With --sweep-frames: the z step between a sweep's frames (mm).
+    #[arg(long, requires = "sweep_frames", default_value_t = 0.05)]
+    sweep_step_mm: f32,
     /// With --session: frames as JPEG of this quality (1..100), as USB cameras stream them.
     #[arg(long, requires = "session", value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: Option<u8>,
@@ -311,7 +325,15 @@ fn generate(args: GenerateArgs) -> Result<()> {
         let unit = unit.as_ref().context("--session needs --unit")?;
         let camera = RendererCamera::new(unit, args.jpeg_quality);
         let rig = args.rig_errors.map(|seed| dataset::rig::RigOffsets::draw(seed, &kit)).unwrap_or_default();
-        let writer = SessionWriter { out: dir.clone(), kit: &kit, camera: &camera, params, rig };
+        if !(args.sweep_step_mm.is_finite() && args.sweep_step_mm > 0.0) {
+            bail!("--sweep-step-mm {}: a sweep's step must be a positive number of millimetres", args.sweep_step_mm);
+        }
+        let sweep = args.sweep_frames.map(|frames| dataset::session::Sweep {
+            frames,
+            step_mm: args.sweep_step_mm,
+            lead_mm: dataset::session::Sweep::DEFAULT_LEAD_MM,
+        });
+        let writer = SessionWriter { out: dir.clone(), kit: &kit, camera: &camera, params, rig, sweep };
         let report = writer.run()?;
         println!(
             "{} frames ({} new) in {:.1} s; wrote {}",
@@ -348,6 +370,7 @@ fn label(args: LabelArgs) -> Result<()> {
             poisson_ratio: args.poisson_ratio,
         }),
         shard: args.shard,
+        register: args.register,
         flags: true,
     };
     let report = request.run()?;

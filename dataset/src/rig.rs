@@ -5,13 +5,20 @@
 //! so that whatever reads a session can be tested against known truth.
 
 use std::collections::BTreeMap;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use rayon::prelude::*;
+use sensor::{CONTACT_THRESHOLD_MM, DepthMap};
 
 use formats::SplitMix64;
 use formats::dataset::{RigPose, Split};
 use glam::{Affine3A, Vec3};
 use serde::{Deserialize, Serialize};
 
+use crate::generate::build_scene_in;
 use crate::kit::Kit;
+use crate::raycast::{RayBundle, RayCaster, Skipping};
 
 /// How far a rig's truth is from its log. All zero: the log is the truth.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -69,6 +76,48 @@ impl RigOffsets {
             * Affine3A::from_rotation_y(self.tilt_y_deg.to_radians())
             * Affine3A::from_rotation_x(self.tilt_x_deg.to_radians())
     }
+}
+
+/// How far a labelled session's depth maps (`labelled`, a `dataset label` folder of `session`)
+/// are from the depth its frames were truly pressed to, the rig's errors being `truth` (a
+/// simulated session's `.simulation/rig.json`): the mean absolute difference (mm) over the
+/// pixels either calls contact, and their count. What registration is measured by.
+pub fn label_error_mm(session: &Path, labelled: &Path, kit: &Kit, truth: &RigOffsets) -> Result<(f64, usize)> {
+    let manifest = formats::dataset::Manifest::load(labelled)?;
+    let log = formats::session::CaptureLog::read(session)?;
+    let by_line: BTreeMap<usize, RigPose> = log.rows.iter().map(|r| (r.line, r.pose)).collect();
+    let sensor = &manifest.sensor;
+    let rays = RayBundle::new(sensor);
+    let per_sample: Vec<(f64, usize)> = manifest
+        .samples
+        .par_iter()
+        .map(|sample| -> Result<(f64, usize)> {
+            let trial =
+                kit.trials.iter().find(|t| t.split == sample.split && t.number == sample.trial).with_context(|| {
+                    format!("sample {}: trial {} {} not in the kit", sample.id, sample.split, sample.trial)
+                })?;
+            let row = sample.capture.as_ref().with_context(|| format!("sample {} has no capture row", sample.id))?;
+            let logged =
+                *by_line.get(&row.line).with_context(|| format!("{}: no line {}", log.path.display(), row.line))?;
+            let pose = truth.true_pose(sample.split, sample.trial, logged);
+            let scene = build_scene_in(kit, trial, pose, truth.mount())?;
+            let (true_depth, _) =
+                RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On).depth_map(sensor, &rays);
+            let path = labelled.join(&sample.depth);
+            let label =
+                DepthMap::decode_png_um(&path, &std::fs::read(&path).with_context(|| path.display().to_string())?)?;
+            let (mut sum, mut pixels) = (0f64, 0usize);
+            for (t, l) in true_depth.depth_mm.iter().zip(&label.depth_mm) {
+                if *t > CONTACT_THRESHOLD_MM || *l > CONTACT_THRESHOLD_MM {
+                    sum += (t - l).abs() as f64;
+                    pixels += 1;
+                }
+            }
+            Ok((sum, pixels))
+        })
+        .collect::<Result<_>>()?;
+    let (sum, pixels) = per_sample.iter().fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    Ok((sum / pixels.max(1) as f64, pixels))
 }
 
 #[cfg(test)]

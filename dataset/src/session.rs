@@ -23,11 +23,14 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::Result;
-use formats::dataset::{GeneratorParams, sample_name};
+use std::collections::BTreeMap;
+
+use anyhow::{Context, Result};
+use formats::dataset::{GeneratorParams, RigPose, sample_name};
 use formats::fs::{write_atomic, write_atomic_unsynced};
 use formats::session::{CAPTURES_CSV, Capture, CaptureLog};
 use formats::{SplitMix64, write_json};
+use rayon::prelude::*;
 use sensor::Sensor;
 use sensor::frame::{encode_jpeg_rgb, encode_png_rgb};
 use serde::{Deserialize, Serialize};
@@ -38,6 +41,7 @@ use crate::raycast::{RayBundle, RayCaster, Skipping};
 use crate::render::{PixelGrid, Renderer};
 use crate::resumable;
 use crate::rig::RigOffsets;
+use crate::touch::first_touch_mm;
 use crate::unit::SensorUnit;
 
 /// The simulation's own folder inside a session.
@@ -52,6 +56,33 @@ pub struct SessionSettings {
     /// The rig's errors, which the frames obey and the log does not (none: the log is true).
     #[serde(default, skip_serializing_if = "RigOffsets::is_zero")]
     pub rig: RigOffsets,
+    /// Frames pressed in z sweeps rather than one drawn z each (absent: drawn).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sweep: Option<Sweep>,
+}
+
+/// A rig's z sweep, as a lab presses a shape: the trial, tilts and B drawn as a sample's, then
+/// `frames` frames from `lead_mm` above the logged first touch (the log's, not the truth's:
+/// the rig's zero is what the lab saw) down in steps of `step_mm`, dwelling at the z range's
+/// end if they reach it. The frames before the true
+/// touch are untouched; where the image first changes tells the rig's z zero
+/// (`dataset::register`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Sweep {
+    pub frames: u32,
+    pub step_mm: f32,
+    pub lead_mm: f32,
+}
+
+impl Sweep {
+    /// Starting this far above the logged touch (mm) leaves a few untouched frames before a true
+    /// touch up to 0.3 mm (a z zero) and as much again (the mount's offsets) earlier.
+    pub const DEFAULT_LEAD_MM: f32 = 1.0;
+
+    /// The logged z travel of a sweep's frame `j`, given where the log puts first touch.
+    pub fn z_mm(&self, first_touch_mm: f32, j: u32) -> f32 {
+        first_touch_mm - self.lead_mm + j as f32 * self.step_mm
+    }
 }
 
 /// The camera a simulated session is filmed with: the project's renderer
@@ -140,7 +171,12 @@ pub struct SessionWriter<'a> {
     pub params: GeneratorParams,
     /// The rig's errors: the frames are filmed at the true poses, the log keeps the drawn ones.
     pub rig: RigOffsets,
+    /// z sweeps instead of one drawn z a frame.
+    pub sweep: Option<Sweep>,
 }
+
+/// A sweep's trial, its tilts and B, and its logged first touch (mm of travel), by sweep.
+type SweepPlan<'k> = BTreeMap<u32, (&'k crate::kit::Trial, RigPose, f32)>;
 
 /// What a finished session reports.
 pub struct SessionReport {
@@ -153,8 +189,12 @@ impl SessionWriter<'_> {
     pub fn run(&self) -> Result<SessionReport> {
         let start = Instant::now();
         let sim = self.out.join(SIMULATION_DIR);
-        let settings =
-            SessionSettings { params: self.params.clone(), camera: self.camera.describe(), rig: self.rig.clone() };
+        let settings = SessionSettings {
+            params: self.params.clone(),
+            camera: self.camera.describe(),
+            rig: self.rig.clone(),
+            sweep: self.sweep,
+        };
         let rows_dir = format!("{SIMULATION_DIR}/rows");
         let kit = std::path::Path::new(&self.kit.source);
         let inputs: Vec<&std::path::Path> = (self.kit.source != "procedural").then_some(kit).into_iter().collect();
@@ -190,8 +230,17 @@ impl SessionWriter<'_> {
         }
         let todo: Vec<u32> = (0..self.params.count).filter(|id| !done.contains_key(id)).collect();
         let rays = RayBundle::new(sensor);
+        let sweeps = self.plan_sweeps(&todo, &rays)?;
         let made = resumable::make_all(&todo, "simulating frames", |id| {
-            let (trial, pose) = draw_sample(self.kit, &self.params, id);
+            let (trial, pose) = match self.sweep {
+                None => draw_sample(self.kit, &self.params, id),
+                Some(sweep) => {
+                    let (k, j) = (id / sweep.frames, id % sweep.frames);
+                    let (trial, pose, touch) = sweeps[&k];
+                    let z_travel_mm = sweep.z_mm(touch, j).min(self.params.z_travel_mm[1]);
+                    (trial, RigPose { z_travel_mm, ..pose })
+                }
+            };
             // Filmed where the rig truly was; logged where it says it was.
             let truth = self.rig.true_pose(trial.split, trial.number, pose);
             let scene = build_scene_in(self.kit, trial, truth, self.rig.mount())?;
@@ -227,5 +276,21 @@ impl SessionWriter<'_> {
         }
         write_atomic(&self.out.join(CAPTURES_CSV), CaptureLog::to_csv(&captures).as_bytes())?;
         Ok(SessionReport { frames: captures.len(), made: made_count, seconds: start.elapsed().as_secs_f64() })
+    }
+
+    /// The sweeps the frames `ids` belong to: each drawn as sample `k` is, its first touch found
+    /// at the logged mount (where the lab's rig believes the sensor is).
+    fn plan_sweeps<'k>(&'k self, ids: &[u32], rays: &RayBundle) -> Result<SweepPlan<'k>> {
+        let Some(sweep) = self.sweep else { return Ok(BTreeMap::new()) };
+        let mut ks: Vec<u32> = ids.iter().map(|id| id / sweep.frames).collect();
+        ks.dedup();
+        ks.par_iter()
+            .map(|&k| {
+                let (trial, pose) = draw_sample(self.kit, &self.params, k);
+                let touch = first_touch_mm(self.kit, trial, pose, self.camera.sensor(), rays)
+                    .with_context(|| format!("sweep {k} (trial {} {})", trial.split, trial.number))?;
+                Ok((k, (trial, RigPose { z_travel_mm: 0.0, ..pose }, touch)))
+            })
+            .collect()
     }
 }

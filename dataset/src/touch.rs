@@ -9,9 +9,10 @@ use formats::dataset::RigPose;
 use sensor::Sensor;
 use serde::{Deserialize, Serialize};
 
-use crate::generate::build_scene;
+use crate::generate::build_scene_in;
 use crate::kit::{Kit, Trial};
 use crate::raycast::{RayBundle, RayCaster, Skipping};
+use crate::rig::RigOffsets;
 
 /// What the log's z column measures.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -75,15 +76,52 @@ pub const TOUCH_TOLERANCE_MM: f32 = 0.002;
 /// `pose` says (its z ignored), first touches the undeformed dome: the least travel at which
 /// one of `sensor`'s rays meets the assembly inside the dome, to [`TOUCH_TOLERANCE_MM`].
 pub fn first_touch_mm(kit: &Kit, trial: &Trial, pose: RigPose, sensor: &Sensor, rays: &RayBundle) -> Result<f32> {
+    let bracket = (MIN_Z_TRAVEL_MM, sensor.max_depth_mm as f32);
+    first_touch_in(kit, trial, pose, &RigOffsets::default(), sensor, rays, bracket, Seen::default())
+}
+
+/// What counts as a touch: by default anything of the assembly on any pixel of the crop.
+#[derive(Clone, Copy, Default)]
+pub(crate) struct Seen<'a> {
+    /// Only the crop's pixels this marks (what a camera sees of the skin).
+    pub within: Option<&'a [bool]>,
+    /// Only the indenters (where the trial has any), not the indicator's shell: a broad shell
+    /// pressed on the dome it is concentric with hardly changes the image.
+    pub indenters_only: bool,
+}
+
+/// [`first_touch_mm`] on a rig with errors `rig` (its B zero and mount; z zeros are left out:
+/// the travel returned is the rig's true one), searched within `bracket_mm` (an error if the
+/// assembly touches at its low end or never at its high end), counting what `seen` counts.
+#[allow(clippy::too_many_arguments)] // The rig, the bracket and what counts are each needed by one caller.
+pub(crate) fn first_touch_in(
+    kit: &Kit,
+    trial: &Trial,
+    pose: RigPose,
+    rig: &RigOffsets,
+    sensor: &Sensor,
+    rays: &RayBundle,
+    bracket_mm: (f32, f32),
+    seen: Seen,
+) -> Result<f32> {
+    let mount = rig.mount();
     let touches = |z: f32| -> Result<bool> {
-        let scene = build_scene(kit, trial, RigPose { z_travel_mm: z, ..pose })?;
-        let caster = RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On);
+        let pose = RigPose { z_travel_mm: z, b_axis_deg: pose.b_axis_deg + rig.b_zero_deg, ..pose };
+        let scene = build_scene_in(kit, trial, pose, mount)?;
+        let mut parts = scene.part_refs();
+        if seen.indenters_only && parts.len() > 1 {
+            parts.remove(0);
+        }
+        let caster = RayCaster::new(&parts, sensor.radius_mm, Skipping::On);
         let (depth, _) = caster.depth_map(sensor, rays);
-        Ok(depth.depth_mm.iter().any(|&d| d > 0.0))
+        Ok(match seen.within {
+            None => depth.depth_mm.iter().any(|&d| d > 0.0),
+            Some(mask) => depth.depth_mm.iter().zip(mask).any(|(&d, &m)| m && d > 0.0),
+        })
     };
-    let (mut lo, mut hi) = (MIN_Z_TRAVEL_MM, sensor.max_depth_mm as f32);
+    let (mut lo, mut hi) = bracket_mm;
     if touches(lo)? {
-        bail!("the assembly touches the sensor even raised {} mm: no first touch to count from", -lo);
+        bail!("the assembly touches the sensor even at {lo} mm of travel: no first touch to count from");
     }
     if !touches(hi)? {
         bail!("the assembly never touches the sensor within {hi} mm of travel: no first touch to count from");
@@ -112,7 +150,7 @@ mod tests {
             let pose = RigPose { b_axis_deg: 40.0 * k as f32, ..RigPose::default() };
             let z = first_touch_mm(&kit, trial, pose, &sensor, &rays).unwrap();
             let depth = |z: f32| {
-                let scene = build_scene(&kit, trial, RigPose { z_travel_mm: z, ..pose }).unwrap();
+                let scene = crate::generate::build_scene(&kit, trial, RigPose { z_travel_mm: z, ..pose }).unwrap();
                 let caster = RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On);
                 caster.depth_map(&sensor, &rays).0.max_mm()
             };

@@ -6,6 +6,7 @@ mod calibration;
 mod common;
 mod generator;
 mod kit;
+mod register;
 mod safety;
 mod session;
 mod shard;

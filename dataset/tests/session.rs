@@ -290,27 +290,7 @@ fn a_rigs_errors_move_the_frames_not_the_log() {
     ok(label(&clean, &truth(&clean), &a, &[]));
     ok(label(&off, &sensor, &b, &[]));
     assert!(files(&a, &["depth"]) == files(&b, &["depth"]));
-    let sensor: sensor::Sensor = formats::read_json(&sensor).unwrap();
-    let rays = dataset::RayBundle::new(&sensor);
-    let manifest = Manifest::load(&b).unwrap();
-    let (mut error_sum, mut pixels) = (0.0f64, 0usize);
-    for sample in &manifest.samples {
-        let row = &rows[sample.id as usize];
-        let trial = kit.trials.iter().find(|t| t.split == row.split && t.number == row.trial).unwrap();
-        let pose = rig.true_pose(row.split, row.trial, row.pose);
-        let scene = dataset::generate::build_scene_in(&kit, trial, pose, rig.mount()).unwrap();
-        let caster = dataset::RayCaster::new(&scene.part_refs(), sensor.radius_mm, dataset::Skipping::On);
-        let (true_depth, _) = caster.depth_map(&sensor, &rays);
-        let labelled =
-            DepthMap::decode_png_um(&b.join(&sample.depth), &std::fs::read(b.join(&sample.depth)).unwrap()).unwrap();
-        for (t, l) in true_depth.depth_mm.iter().zip(&labelled.depth_mm) {
-            if *t > sensor::CONTACT_THRESHOLD_MM || *l > sensor::CONTACT_THRESHOLD_MM {
-                error_sum += (t - l).abs() as f64;
-                pixels += 1;
-            }
-        }
-    }
-    let error_mm = error_sum / pixels.max(1) as f64;
+    let (error_mm, pixels) = dataset::rig::label_error_mm(&off, &b, &kit, &rig).unwrap();
     eprintln!("unregistered labels against the truth: {error_mm:.4} mm over {pixels} contact pixels");
     assert!(error_mm > 0.05, "the offsets must matter to the labels: {error_mm} mm");
 }

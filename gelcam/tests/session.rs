@@ -21,7 +21,9 @@ fn a_session_from_another_image_model_labels_to_the_generators_depth() {
         let camera = GelSession::new(&unit);
         let params = GeneratorParams { lifted_fraction: 0.25, ..GeneratorParams::new(11, 12, &kit.source) };
         let dir = session.join(seed.to_string());
-        SessionWriter { out: dir.clone(), kit: &kit, camera: &camera, params, rig: Default::default() }.run().unwrap();
+        SessionWriter { out: dir.clone(), kit: &kit, camera: &camera, params, rig: Default::default(), sweep: None }
+            .run()
+            .unwrap();
         let ext = if jpeg.is_some() { "jpg" } else { "png" };
         assert!(dir.join(format!("frames/000000.{ext}")).is_file() && dir.join(format!("reference.{ext}")).is_file());
 
@@ -35,6 +37,7 @@ fn a_session_from_another_image_model_labels_to_the_generators_depth() {
             z: Default::default(),
             force: None,
             shard: None,
+            register: false,
         };
         let report = report_lines(&labeller.run().unwrap()).join("\n");
         assert!(!report.contains("logging slip"), "no untouched frame differs beyond this unit's noise: {report}");

@@ -185,13 +185,15 @@ def label_session(
     youngs_modulus_mpa: Optional[float] = None,
     poisson_ratio: Optional[float] = None,
     shard: Optional[str] = None,
+    register: bool = False,
 ) -> Dataset:
     """Labels a capture session (``captures.csv``, its frames, the reference frame) into the
     dataset folder ``out`` with the unit's sensor description (a dict, a ``Calibration`` or a
     JSON file), as ``dataset label`` does: resumable, refusing a folder that is not its own.
     ``shard="K/N"`` labels only share K (0-based) of N of the rows, one task of a job array
-    (``dataset merge`` joins the shares). Returns the dataset, its ``report`` the lines
-    ``dataset label`` prints."""
+    (``dataset merge`` joins the shares). ``register=True`` applies the rig's offsets estimated
+    from the log's z sweeps (``dataset label --register``); without it they are reported only.
+    Returns the dataset, its ``report`` the lines ``dataset label`` prints."""
     if isinstance(sensor, Calibration):
         sensor = sensor.sensor
     if isinstance(sensor, dict):
@@ -217,6 +219,7 @@ def label_session(
         z_from=z_from,
         z_zero_mm=z_zero_mm,
         shard=shard,
+        register=register,
         force_labels=force_labels,
         **material,
     )

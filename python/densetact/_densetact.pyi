@@ -116,4 +116,5 @@ def label_session(
     youngs_modulus_mpa: float = ...,
     poisson_ratio: float = ...,
     shard: Optional[str] = None,
+    register: bool = False,
 ) -> List[str]: ...

@@ -74,7 +74,7 @@ pub(crate) fn calibrate(
     session, out, sensor_json, kit = "procedural", kit_scale = 1.0, on_bad_row = "stop",
     z_from = "seated", z_zero_mm = None, force_labels = true,
     youngs_modulus_mpa = dataset::mechanics::Material::PAPER.youngs_modulus_mpa,
-    poisson_ratio = dataset::mechanics::Material::PAPER.poisson_ratio, shard = None
+    poisson_ratio = dataset::mechanics::Material::PAPER.poisson_ratio, shard = None, register = false
 ))]
 #[allow(clippy::too_many_arguments)] // Python's keyword arguments, one per flag of `dataset label`.
 pub(crate) fn label_session(
@@ -91,6 +91,7 @@ pub(crate) fn label_session(
     youngs_modulus_mpa: f64,
     poisson_ratio: f64,
     shard: Option<&str>,
+    register: bool,
 ) -> PyResult<Vec<String>> {
     let sensor: Sensor = serde_json::from_str(sensor_json)
         .map_err(|e| PyValueError::new_err(format!("the sensor description is not one: {e}")))?;
@@ -107,6 +108,7 @@ pub(crate) fn label_session(
         shard: shard
             .map(|s| s.parse::<formats::Shard>().map_err(|e| PyValueError::new_err(format!("shard: {e}"))))
             .transpose()?,
+        register,
         flags: false,
     };
     let report = py.detach(|| request.run()).map_err(error)?;

@@ -91,6 +91,7 @@ fn session(unit: &dataset::SensorUnit, dir: &Path, frames: u32) {
         camera: &camera,
         params,
         rig: Default::default(),
+        sweep: None,
     };
     writer.run().unwrap();
 }

@@ -111,7 +111,7 @@ fn one(
     opts: &CalibrationOptions,
 ) -> Result<Outcome> {
     let session = dir.join("session");
-    SessionWriter { out: session.clone(), kit, camera, params, rig: Default::default() }.run()?;
+    SessionWriter { out: session.clone(), kit, camera, params, rig: Default::default(), sweep: None }.run()?;
     let sawtooth = ["png", "jpg"]
         .iter()
         .map(|e| session.join(format!("sawtooth.{e}")))
@@ -134,6 +134,7 @@ fn one(
         z: Default::default(),
         force: Some(dataset::mechanics::Material::PAPER),
         shard: None,
+        register: false,
     }
     .run()?;
     let device = model::backend::default_device();

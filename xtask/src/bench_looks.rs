@@ -74,6 +74,7 @@ pub fn run(args: Args) -> Result<()> {
             camera: &camera,
             params: params(1, args.gelcam_samples),
             rig: Default::default(),
+            sweep: None,
         }
         .run()?;
         // Labelled through the unit's true geometry: the figure is the look's, not a
@@ -88,6 +89,7 @@ pub fn run(args: Args) -> Result<()> {
             z: Default::default(),
             force: None,
             shard: None,
+            register: false,
         }
         .run()?;
         sets.push((format!("gelcam unit {g} (membrane {:.2} px)", unit.look.membrane_sigma_px), data, None));

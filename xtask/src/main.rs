@@ -13,6 +13,7 @@ mod bench_loader;
 mod bench_looks;
 mod bench_model;
 mod bench_raycast;
+mod bench_register;
 mod bench_render;
 mod bench_table;
 mod fuzz;
@@ -58,6 +59,9 @@ enum Bench {
     /// The README's real-sensor commands on a session filmed by the independent image model,
     /// beside the same scenes through the project's renderer.
     Foreign(bench_foreign::Args),
+    /// Registration from the frames: simulated sweep sessions with a rig's errors, filmed by the
+    /// renderer and by `gelcam`, labelled with and without `--register` against the truth.
+    Register(bench_register::Args),
     /// Run time against error: every preset and input size, same training budget, each backend;
     /// writes its section of BENCHMARKS.md and an SVG scatter.
     Table(bench_table::Args),
@@ -89,6 +93,7 @@ fn main() -> ExitCode {
         Command::Bench { what: Bench::Render(args) } => bench_render::run(args),
         Command::Bench { what: Bench::Calibrate(args) } => bench_calibrate::run(args),
         Command::Bench { what: Bench::Foreign(args) } => bench_foreign::run(args),
+        Command::Bench { what: Bench::Register(args) } => bench_register::run(args),
         Command::Bench { what: Bench::Finetune(args) } => bench_finetune::run(args),
         Command::Bench { what: Bench::Drift(args) } => bench_drift::run(args),
         Command::Bench { what: Bench::Force(args) } => bench_force::run(args),

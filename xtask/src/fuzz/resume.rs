@@ -48,6 +48,7 @@ fn label(session: &Path, out: &Path, sensor: &Sensor, kit: &Kit) -> Result<()> {
         z: Default::default(),
         force: None,
         shard: None,
+        register: false,
     };
     labeller.run().map(|_| ())
 }

@@ -40,6 +40,7 @@ pub fn build_targets(work: &Path, kit: Option<&Path>) -> Result<Vec<Target>> {
         camera: &camera,
         params: GeneratorParams::new(5, 3, &procedural.source),
         rig: Default::default(),
+        sweep: None,
     };
     writer.run()?;
     let run = work.join("run");

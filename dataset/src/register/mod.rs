@@ -1,0 +1,366 @@
+//! Registration from the frames (`dataset label --register`): the rig's offsets (each trial's
+//! z zero, the sensor's x, y and tilts in its mount, B's zero; [`RigOffsets`]) estimated from
+//! the session itself, without a network, so that labels do not carry a rig's zeros set by eye.
+//!
+//! It reads the log's z sweeps: rows of one trial, tilts and B at several z. In each, the first
+//! frame whose local change (a 9x9 box's, against the reference) rises out of the noise finds
+//! the touch; each frame's change against the sweep's own untouched frames, projected on a
+//! frame 0.25 mm further, is then fitted as a power (1 to 2, the best) of the travel past an
+//! onset, which is the logged z of first touch; where the change sits a little past it says
+//! where the skin was touched. The ray cast says both for any candidate offsets (the travel at
+//! which an indenter first meets the useful disk, and its contact's centroid), and, linearised
+//! about the log and then about the first answer, the sweeps' onsets and centroids give the
+//! offsets by weighted least squares. Sweeps that start touched, never change, fit no growth
+//! law, or disagree with the rest (beyond five a priori standard deviations, the worst first,
+//! up to a quarter) are named and left out.
+//!
+//! Measured against the truth on the renderer's sweeps of the authors' kit (`cargo xtask bench
+//! register`, BENCHMARKS.md): onsets 0.002 mm late on average, scattering by 0.02 mm. On the
+//! independent image model's JPEG frames it does not work yet.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use formats::dataset::RigPose;
+use formats::session::Capture;
+use image::RgbImage;
+use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
+use sensor::Sensor;
+use sensor::frame::read_crop;
+use serde::{Deserialize, Serialize};
+
+use crate::generate::build_scene_in;
+use crate::kit::{Kit, Trial};
+use crate::raycast::{RayBundle, RayCaster, Skipping};
+use crate::rig::{RigOffsets, trial_key};
+use crate::touch::{MIN_Z_TRAVEL_MM, Seen, first_touch_in};
+
+mod onset;
+use onset::{Onset, blob_centroid, change_map, onset};
+
+/// A sweep needs this many frames: a few untouched ones to learn the noise, and the onset.
+pub const MIN_SWEEP_FRAMES: usize = 8;
+/// The contact's centroid is compared this far (mm of travel) past first touch.
+const PROBE_MM: f32 = 0.1;
+/// A centroid's standard deviation (px) in the fit: the image's and the cast's contact
+/// differ in shape as well as by noise.
+const CENTROID_SD_PX: f64 = 3.0;
+/// Steps of the finite differences: x, y (mm), tilts, B (degrees).
+const STEPS: [f32; 5] = [0.25, 0.25, 0.5, 0.5, 1.0];
+/// Weak priors on the mount (one sd, mm and degrees): three times the limits a rig shows, so
+/// that a session whose sweeps cannot tell an offset apart still solves, at zero.
+const PRIOR_SD: [f64; 5] = [1.5, 1.5, 3.0, 3.0, 6.0];
+/// Sweeps with a residual beyond this many a priori standard deviations disagree with the
+/// rest and are left out.
+const DISAGREE_SIGMAS: f64 = 5.0;
+
+/// The offsets estimated from a session's frames.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Registration {
+    /// The estimate: each swept trial's z zero in `z_zero_by_trial_mm`.
+    pub offsets: RigOffsets,
+    /// One standard deviation of each estimate, in the same fields.
+    pub sd: RigOffsets,
+    /// Sweeps the estimate is made from.
+    pub sweeps: usize,
+    /// Sweeps left out: too few frames, no onset found, or a residual that disagrees with the
+    /// rest (`line N (frame): why`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub left_out: Vec<String>,
+    /// Trials of the log with no sweep used: their z zero is taken as the log's.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub unswept_trials: Vec<String>,
+}
+
+/// Rows of one trial at one tilt and B, sorted by z.
+struct SweepRows<'k> {
+    trial: &'k Trial,
+    pose: RigPose,
+    rows: Vec<Capture>,
+}
+
+impl SweepRows<'_> {
+    fn name(&self) -> String {
+        format!("line {} ({})", self.rows[0].line, self.rows[0].frame)
+    }
+}
+
+/// The log's sweeps: rows grouped by trial, tilts and B (in the order they first appear).
+fn sweeps<'k>(kit: &'k Kit, rows: &[Capture]) -> (Vec<SweepRows<'k>>, Vec<String>) {
+    let mut groups: Vec<SweepRows> = Vec::new();
+    let mut index = BTreeMap::new();
+    for r in rows {
+        let Some(trial) = kit.trials.iter().find(|t| t.split == r.split && t.number == r.trial) else { continue };
+        let p = r.pose;
+        let key = (trial_key(r.split, r.trial), p.a_axis_deg.to_bits(), p.b_axis_deg.to_bits(), p.c_axis_deg.to_bits());
+        let k = *index.entry(key).or_insert_with(|| {
+            groups.push(SweepRows { trial, pose: RigPose { z_travel_mm: 0.0, ..p }, rows: Vec::new() });
+            groups.len() - 1
+        });
+        groups[k].rows.push(r.clone());
+    }
+    let mut short = Vec::new();
+    groups.retain_mut(|g| {
+        g.rows.sort_by(|a, b| a.pose.z_travel_mm.total_cmp(&b.pose.z_travel_mm));
+        g.rows.dedup_by(|a, b| a.pose.z_travel_mm == b.pose.z_travel_mm);
+        let keep = g.rows.len() >= MIN_SWEEP_FRAMES;
+        if !keep && g.rows.len() > 1 {
+            short.push(format!("{}: {} frames, a sweep needs {MIN_SWEEP_FRAMES}", g.name(), g.rows.len()));
+        }
+        keep
+    });
+    (groups, short)
+}
+
+/// Whether the log holds any sweep to register from.
+pub fn has_sweeps(kit: &Kit, rows: &[Capture]) -> bool {
+    !sweeps(kit, rows).0.is_empty()
+}
+
+/// The touch a camera shows: an indenter's, on the useful disk.
+fn seen(mask: &[bool]) -> Seen<'_> {
+    Seen { within: Some(mask), indenters_only: true }
+}
+
+/// The ray cast's account of a sweep under candidate offsets: its first touch (mm of logged
+/// travel) and the contact's depth-weighted centroid (px) [`PROBE_MM`] past it.
+fn predict(
+    kit: &Kit,
+    sweep: &SweepRows,
+    rig: &RigOffsets,
+    sensor: &Sensor,
+    rays: &RayBundle,
+    mask: &[bool],
+    bracket: (f32, f32),
+) -> Result<(f64, [f64; 2])> {
+    let touch = first_touch_in(kit, sweep.trial, sweep.pose, rig, sensor, rays, bracket, seen(mask))?;
+    let pose =
+        RigPose { z_travel_mm: touch + PROBE_MM, b_axis_deg: sweep.pose.b_axis_deg + rig.b_zero_deg, ..sweep.pose };
+    let scene = build_scene_in(kit, sweep.trial, pose, rig.mount())?;
+    let mut parts = scene.part_refs();
+    if parts.len() > 1 {
+        parts.remove(0); // the indenters alone, as `seen` counts the touch
+    }
+    let (depth, _) = RayCaster::new(&parts, sensor.radius_mm, Skipping::On).depth_map(sensor, rays);
+    let centroid =
+        blob_centroid(sensor.crop_size_px as usize, |p| if mask[p] { depth.depth_mm[p] as f64 } else { 0.0 })
+            .context("no contact past first touch")?;
+    Ok((touch as f64, centroid))
+}
+
+/// The offsets in the order of [`STEPS`], as a rig's errors (no z zeros).
+fn offsets_of(theta: &[f64]) -> RigOffsets {
+    RigOffsets {
+        x_mm: theta[0] as f32,
+        y_mm: theta[1] as f32,
+        tilt_x_deg: theta[2] as f32,
+        tilt_y_deg: theta[3] as f32,
+        b_zero_deg: theta[4] as f32,
+        ..RigOffsets::default()
+    }
+}
+
+/// One sweep measured and linearised: its onset, the cast's touch and centroid at the log's
+/// offsets, and their derivatives along each offset.
+struct Linearised {
+    touch_mm: f64,
+    centroid_px: [f64; 2],
+    d_touch: [f64; 5],
+    d_centroid: [[f64; 2]; 5],
+}
+
+/// The cast's touch and centroid for a sweep at offsets `theta`, and their derivatives.
+fn linearise(
+    kit: &Kit,
+    g: &SweepRows,
+    theta: &[f64; 5],
+    sensor: &Sensor,
+    rays: &RayBundle,
+    mask: &[bool],
+    near: (f32, f32),
+) -> Result<Linearised> {
+    let (touch_mm, centroid_px) = predict(kit, g, &offsets_of(theta), sensor, rays, mask, near)?;
+    let (mut d_touch, mut d_centroid) = ([0.0; 5], [[0.0; 2]; 5]);
+    for (k, &step) in STEPS.iter().enumerate() {
+        let mut moved = *theta;
+        moved[k] += step as f64;
+        let (t, c) = predict(kit, g, &offsets_of(&moved), sensor, rays, mask, near)?;
+        d_touch[k] = (t - touch_mm) / step as f64;
+        d_centroid[k] = [(c[0] - centroid_px[0]) / step as f64, (c[1] - centroid_px[1]) / step as f64];
+    }
+    Ok(Linearised { touch_mm, centroid_px, d_touch, d_centroid })
+}
+
+/// Linearisations: the second about the first's estimate.
+const GAUSS_NEWTON_PASSES: usize = 2;
+
+/// Estimates the rig's offsets from the session's sweeps. `rows` are the log's parsed rows;
+/// frames are read as crops of `sensor` relative to `session`.
+pub fn register(
+    session: &Path,
+    kit: &Kit,
+    sensor: &Sensor,
+    rows: &[Capture],
+    reference: &RgbImage,
+) -> Result<Registration> {
+    let (groups, mut left_out) = sweeps(kit, rows);
+    let mask = sensor.valid_mask();
+    let rays = RayBundle::new(sensor);
+    let n = sensor.crop_size_px as usize;
+    let onsets: Vec<Result<Onset, String>> = groups
+        .par_iter()
+        .map(|g| -> Result<Result<Onset, String>> {
+            let (mut frames, mut maps) = (Vec::with_capacity(g.rows.len()), Vec::with_capacity(g.rows.len()));
+            for r in &g.rows {
+                let frame = read_crop(&session.join(&r.frame), sensor)?;
+                // A camera's exposure and colour balance drift between frames: taken out
+                // against the reference as the contact gate does.
+                let frame = sensor::gate::Balance::fit(&frame, reference, &mask).undo(&frame);
+                maps.push(change_map(&frame, reference, &mask));
+                frames.push(frame);
+            }
+            let z: Vec<f32> = g.rows.iter().map(|r| r.pose.z_travel_mm).collect();
+            Ok(onset(&frames, &maps, &z, n))
+        })
+        .collect::<Result<_>>()?;
+    let mut used: Vec<(&SweepRows, Onset)> = Vec::new();
+    for (g, o) in groups.iter().zip(onsets) {
+        match o {
+            Ok(o) => used.push((g, o)),
+            Err(why) => left_out.push(format!("{}: {why}", g.name())),
+        }
+    }
+    // The log's first touches, found over the whole travel once; later casts search near them.
+    let full = (MIN_Z_TRAVEL_MM, sensor.max_depth_mm as f32);
+    let logged: Vec<f32> = used
+        .par_iter()
+        .map(|(g, _)| {
+            first_touch_in(kit, g.trial, g.pose, &RigOffsets::default(), sensor, &rays, full, seen(&mask))
+                .with_context(|| g.name())
+        })
+        .collect::<Result<_>>()?;
+    let mut theta = [0.0; 5];
+    let mut solution = None;
+    let mut kept = Vec::new();
+    let mut disagree = Vec::new();
+    for _ in 0..GAUSS_NEWTON_PASSES {
+        // Every measured sweep, linearised about the current estimate: one that disagreed about
+        // the log's offsets may agree about better ones (which indenter touches first can change).
+        let lin: Vec<Linearised> = used
+            .par_iter()
+            .zip(&logged)
+            .map(|((g, _), &t)| {
+                linearise(kit, g, &theta, sensor, &rays, &mask, (t - 1.5, t + 1.5)).with_context(|| g.name())
+            })
+            .collect::<Result<_>>()?;
+        // Sweeps that disagree with the rest are left out one at a time, the worst first (a
+        // sweep whose touch the image shows late, or whose contact it places elsewhere), up to
+        // a quarter of them.
+        let mut index: Vec<usize> = (0..used.len()).collect();
+        disagree.clear();
+        let pick = |index: &[usize]| -> (Vec<(&SweepRows, Onset)>, Vec<&Linearised>) {
+            (index.iter().map(|&i| (used[i].0, used[i].1)).collect(), index.iter().map(|&i| &lin[i]).collect())
+        };
+        let (sub, sub_lin) = pick(&index);
+        let mut s = solve(&sub, &sub_lin, &theta);
+        while let Some(sol) = &s {
+            let (worst, residual) =
+                sol.worst_residual.iter().copied().enumerate().max_by(|a, b| a.1.total_cmp(&b.1)).unwrap_or((0, 0.0));
+            if residual <= DISAGREE_SIGMAS || 4 * (disagree.len() + 1) > used.len() {
+                break;
+            }
+            disagree.push((index.remove(worst), residual));
+            let (sub, sub_lin) = pick(&index);
+            s = solve(&sub, &sub_lin, &theta);
+        }
+        if let Some(sol) = &s {
+            theta = sol.theta;
+        }
+        solution = s;
+        kept = index;
+    }
+    for &(i, residual) in &disagree {
+        left_out
+            .push(format!("{}: disagrees with the other sweeps ({residual:.1} standard deviations)", used[i].0.name()));
+    }
+    let sweeps_used = kept.len();
+    let trials: std::collections::BTreeSet<String> = rows
+        .iter()
+        .filter(|r| kit.trials.iter().any(|t| t.split == r.split && t.number == r.trial))
+        .map(|r| trial_key(r.split, r.trial))
+        .collect();
+    let (offsets, sd) = match solution {
+        Some(s) => (s.offsets, s.sd),
+        None => (RigOffsets::default(), RigOffsets::default()),
+    };
+    let unswept_trials = trials.into_iter().filter(|t| !offsets.z_zero_by_trial_mm.contains_key(t)).collect();
+    Ok(Registration { offsets, sd, sweeps: sweeps_used, left_out, unswept_trials })
+}
+
+struct Solution {
+    theta: [f64; 5],
+    offsets: RigOffsets,
+    sd: RigOffsets,
+    /// Each sweep's largest residual, in its a priori standard deviations.
+    worst_residual: Vec<f64>,
+}
+
+/// Weighted least squares over the mount's five offsets and each swept trial's z zero.
+fn solve(used: &[(&SweepRows, Onset)], lin: &[&Linearised], theta0: &[f64; 5]) -> Option<Solution> {
+    if used.is_empty() {
+        return None;
+    }
+    let mut trials: BTreeMap<String, usize> = BTreeMap::new();
+    for (g, _) in used {
+        let next = trials.len();
+        trials.entry(trial_key(g.trial.split, g.trial.number)).or_insert(next);
+    }
+    let unknowns = 5 + trials.len();
+    let equations = 3 * used.len() + 5;
+    let mut a = DMatrix::<f64>::zeros(equations, unknowns);
+    let mut b = DVector::<f64>::zeros(equations);
+    // Unknowns: the offsets' change from `theta0`, and the zeros.
+    for (i, ((g, onset), m)) in used.iter().zip(lin).enumerate() {
+        let t = 5 + trials[&trial_key(g.trial.split, g.trial.number)];
+        // Onset: logged first touch = the cast's true touch under the offsets - the trial's zero.
+        let w = 1.0 / onset.sd_mm;
+        for k in 0..5 {
+            a[(3 * i, k)] = w * m.d_touch[k];
+        }
+        a[(3 * i, t)] = -w;
+        b[3 * i] = w * (onset.z_mm - m.touch_mm);
+        for axis in 0..2 {
+            let row = 3 * i + 1 + axis;
+            for k in 0..5 {
+                a[(row, k)] = m.d_centroid[k][axis] / CENTROID_SD_PX;
+            }
+            b[row] = (onset.centroid_px[axis] - m.centroid_px[axis]) / CENTROID_SD_PX;
+        }
+    }
+    for k in 0..5 {
+        a[(3 * used.len() + k, k)] = 1.0 / PRIOR_SD[k];
+        b[3 * used.len() + k] = -theta0[k] / PRIOR_SD[k];
+    }
+    let normal = a.transpose() * &a;
+    let chol = normal.clone().cholesky()?;
+    let u = chol.solve(&(a.transpose() * &b));
+    let residual = &a * &u - &b;
+    let dof = (equations as f64 - unknowns as f64).max(1.0);
+    let scale = (residual.norm_squared() / dof).max(1.0);
+    let cov = chol.inverse() * scale;
+    let sd_of = |k: usize| cov[(k, k)].max(0.0).sqrt();
+    // In the a priori standard deviations: a sweep far off stands out however many there are.
+    let worst_residual =
+        (0..used.len()).map(|i| (0..3).map(|r| residual[3 * i + r].abs()).fold(0.0, f64::max)).collect();
+    let theta: [f64; 5] = std::array::from_fn(|k| theta0[k] + u[k]);
+    let sds: Vec<f64> = (0..5).map(sd_of).collect();
+    let mut offsets = offsets_of(&theta);
+    let mut sd = offsets_of(&sds);
+    for (key, &t) in &trials {
+        offsets.z_zero_by_trial_mm.insert(key.clone(), u[5 + t] as f32);
+        sd.z_zero_by_trial_mm.insert(key.clone(), sd_of(5 + t) as f32);
+    }
+    Some(Solution { theta, offsets, sd, worst_residual })
+}

@@ -1,0 +1,149 @@
+//! Registration from the frames (`dataset label --register`): a simulated session pressed in z
+//! sweeps, its frames obeying a rig's errors its log does not know, gives back those errors
+//! from its frames alone, and labels that meet the true depth where the log's miss it.
+
+use std::path::Path;
+
+use dataset::label::LabelFile;
+use dataset::register::Registration;
+use dataset::rig::{RigOffsets, label_error_mm};
+
+use crate::common::{dataset, ok, refused};
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn label(session: &Path, kit: &str, out: &Path, extra: &[&str]) -> std::process::Output {
+    let truth = session.join(".simulation/truth.json");
+    let mut args = vec![
+        "label",
+        "--session",
+        s(session),
+        "--kit",
+        kit,
+        "--sensor",
+        s(&truth),
+        "--out",
+        s(out),
+        "--no-force-labels",
+    ];
+    args.extend(extra);
+    dataset(&args)
+}
+
+/// A sweep session of `sweeps` sweeps (36 frames, 0.05 mm apart, from 1 mm above the logged
+/// touch) with rig errors 9, labelled as logged and registered: the report without
+/// `--register`, the registration, the truth, and the labels' depth error as logged and
+/// registered (mm).
+struct Registered {
+    plain_report: String,
+    registration: Registration,
+    truth: RigOffsets,
+    logged_error_mm: f64,
+    registered_error_mm: f64,
+}
+
+impl Registered {
+    /// The offsets matter to the labels, and the registered ones miss the truth by at most
+    /// `factor` of what the log's miss it by.
+    fn labels_beat_the_log(&self, factor: f64) {
+        assert!(self.logged_error_mm > 0.05, "the offsets matter to the labels: {} mm", self.logged_error_mm);
+        let (after, before) = (self.registered_error_mm, self.logged_error_mm);
+        assert!(after <= factor * before, "registered {after} mm against {before} mm as logged");
+    }
+}
+
+fn register_session(dir: &Path, kit: &str, sweeps: u32) -> Registered {
+    let session = dir.join("s");
+    let count = (36 * sweeps).to_string();
+    let mut args = vec![
+        "generate",
+        "--session",
+        s(&session),
+        "--unit",
+        "2",
+        "--seed",
+        "4",
+        "--rig-errors",
+        "9",
+        "--count",
+        &count,
+        "--sweep-frames",
+        "36",
+        "--sweep-step-mm",
+        "0.05",
+    ];
+    if kit != "procedural" {
+        args.extend(["--kit", kit]);
+    }
+    ok(dataset(&args));
+    let truth: RigOffsets = formats::read_json(&session.join(".simulation/rig.json")).unwrap();
+    let kit_name = kit;
+    let kit = dataset::Kit::open(kit, 1.0, 25.0, "kit").unwrap();
+    let (logged, registered) = (dir.join("logged"), dir.join("registered"));
+    let plain_report = ok(label(&session, kit_name, &logged, &[]));
+    let file: LabelFile = formats::read_json(&logged.join("label.json")).unwrap();
+    assert!(file.registration.is_none(), "nothing applied, nothing recorded");
+    let report = ok(label(&session, kit_name, &registered, &["--register"]));
+    assert!(report.contains("applied to the labels (--register)"), "{report}");
+    let file: LabelFile = formats::read_json(&registered.join("label.json")).unwrap();
+    let registration = file.registration.expect("label.json records the offsets applied");
+    let (logged_error_mm, _) = label_error_mm(&session, &logged, &kit, &truth).unwrap();
+    let (registered_error_mm, _) = label_error_mm(&session, &registered, &kit, &truth).unwrap();
+    eprintln!(
+        "recovered {:?}\nsd {:?}\nleft out {:?}\nlabel depth error against the truth: {registered_error_mm:.4} mm \
+         registered, {logged_error_mm:.4} mm as logged",
+        registration.offsets, registration.sd, registration.left_out
+    );
+    Registered { plain_report, registration, truth, logged_error_mm, registered_error_mm }
+}
+
+/// The embedded kit: the report warns about what the frames show, and the registered labels
+/// are closer to the truth than the log's.
+#[test]
+fn registered_labels_of_the_embedded_kit_beat_the_logs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let r = register_session(tmp.path(), "procedural", 14);
+    assert!(r.plain_report.contains("z sweeps, NOT applied"), "{}", r.plain_report);
+    assert!(r.plain_report.contains("warning: the frames say the log's poses are off"), "{}", r.plain_report);
+    r.labels_beat_the_log(0.5);
+}
+
+/// The authors' kit: every offset within three of its stated standard deviations, or twice the
+/// issue's goal where the sweeps pin it closer, and labels well closer to the truth than the
+/// log's.
+#[test]
+#[ignore = "needs ../shared"]
+fn sweeps_of_the_authors_kit_give_back_the_rigs_offsets() {
+    let tmp = tempfile::tempdir().unwrap();
+    let kit = sensor::shared::shared_dir("DENSETACT_KIT", "densetact-kit");
+    let r = register_session(tmp.path(), kit.to_str().unwrap(), 24);
+    let (o, sd, truth) = (&r.registration.offsets, &r.registration.sd, &r.truth);
+    let near = |what: &str, got: f32, truth: f32, sd: f32, goal: f32| {
+        assert!((got - truth).abs() <= (3.0 * sd).max(2.0 * goal), "{what}: {got} +- {sd} against {truth}");
+    };
+    near("x", o.x_mm, truth.x_mm, sd.x_mm, 0.1);
+    near("y", o.y_mm, truth.y_mm, sd.y_mm, 0.1);
+    near("tilt about x", o.tilt_x_deg, truth.tilt_x_deg, sd.tilt_x_deg, 0.2);
+    near("tilt about y", o.tilt_y_deg, truth.tilt_y_deg, sd.tilt_y_deg, 0.2);
+    near("B zero", o.b_zero_deg, truth.b_zero_deg, sd.b_zero_deg, 0.2);
+    assert!(r.registration.sweeps >= 18, "most sweeps used: {:?}", r.registration.left_out);
+    for (t, z) in &o.z_zero_by_trial_mm {
+        near(t, *z, truth.z_zero_by_trial_mm[t], sd.z_zero_by_trial_mm[t], 0.03);
+    }
+    // The trials of sweeps left out keep the log's zero, so the whole is not yet the goal's 0.02 mm.
+    r.labels_beat_the_log(0.4);
+}
+
+#[test]
+fn register_without_sweeps_is_refused_naming_the_log() {
+    let tmp = tempfile::tempdir().unwrap();
+    let session = tmp.path().join("s");
+    ok(dataset(&["generate", "--session", s(&session), "--unit", "2", "--count", "6"]));
+    let out = tmp.path().join("l");
+    let report = ok(label(&session, "procedural", &out, &[]));
+    assert!(report.contains("rig offsets not checked: the log has no z sweeps"), "{report}");
+    let err = refused(label(&session, "procedural", &tmp.path().join("r"), &["--register"]));
+    assert!(err.contains("captures.csv") && err.contains("--register needs z sweeps"), "{err}");
+}
