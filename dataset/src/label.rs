@@ -223,7 +223,19 @@ impl Labeller<'_> {
         })?;
         let reference = read_crop(&reference_path, self.sensor)?;
         // From the whole log whatever the shard, so that every share applies the same offsets.
-        let registration = if register::has_sweeps(self.kit, &log.rows) {
+        // Registration reads z as travel from the seated pose; a log counted otherwise would
+        // have its convention taken for the rig's zero.
+        let registration = if !self.z.is_seated() {
+            if self.register {
+                bail!(
+                    "{}: --register reads the log's z as travel from the seated pose (--z-from seated), and this log is \
+                     read {:?}",
+                    log.path.display(),
+                    self.z.from
+                );
+            }
+            None
+        } else if register::has_sweeps(self.kit, &log.rows) {
             Some(register::register(&self.session, self.kit, self.sensor, &log.rows, &reference)?)
         } else if self.register {
             bail!(
@@ -547,7 +559,11 @@ pub fn report_lines(r: &LabelReport) -> Vec<String> {
         ),
         r.z.describe(),
     ];
-    lines.extend(registration_lines(r.registration.as_ref(), r.registered));
+    if r.z.is_seated() {
+        lines.extend(registration_lines(r.registration.as_ref(), r.registered));
+    } else {
+        lines.push("rig offsets not checked: registration reads z as travel from the seated pose".into());
+    }
     for (split, s) in &r.manifest.summary {
         lines.push(format!(
             "  {:5}: {:6} samples, contact {:5.1}% of useful pixels, mean contact depth {:.3} mm",

@@ -137,7 +137,7 @@ fn sweeps_of_the_authors_kit_give_back_the_rigs_offsets() {
 }
 
 #[test]
-fn register_without_sweeps_is_refused_naming_the_log() {
+fn register_without_sweeps_or_with_another_z_is_refused_naming_the_log() {
     let tmp = tempfile::tempdir().unwrap();
     let session = tmp.path().join("s");
     ok(dataset(&["generate", "--session", s(&session), "--unit", "2", "--count", "6"]));
@@ -146,4 +146,8 @@ fn register_without_sweeps_is_refused_naming_the_log() {
     assert!(report.contains("rig offsets not checked: the log has no z sweeps"), "{report}");
     let err = refused(label(&session, "procedural", &tmp.path().join("r"), &["--register"]));
     assert!(err.contains("captures.csv") && err.contains("--register needs z sweeps"), "{err}");
+    // A log whose z counts from elsewhere is not registered: its convention is not a rig's zero.
+    let first_touch = ["--register", "--z-from", "first-touch"];
+    let err = refused(label(&session, "procedural", &tmp.path().join("f"), &first_touch));
+    assert!(err.contains("captures.csv") && err.contains("--register reads the log's z as travel"), "{err}");
 }
