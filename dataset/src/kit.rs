@@ -150,6 +150,11 @@ impl Kit {
         Ok(Kit { source: dir.display().to_string(), indicators, indenters, trials })
     }
 
+    /// Trial `number` of the `split` index, if the kit has it.
+    pub fn trial(&self, split: Split, number: u32) -> Option<&Trial> {
+        self.trials.iter().find(|t| t.split == split && t.number == number)
+    }
+
     pub fn trials_in(&self, split: Split) -> Vec<&Trial> {
         self.trials.iter().filter(|t| t.split == split).collect()
     }

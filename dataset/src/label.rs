@@ -186,7 +186,7 @@ impl Labeller<'_> {
             if !formats::Shard::includes(self.shard, id as u32) {
                 continue;
             }
-            let trial = self.kit.trials.iter().find(|t| t.split == capture.split && t.number == capture.trial);
+            let trial = self.kit.trial(capture.split, capture.trial);
             let problem = match trial {
                 None => Some(format!(
                     "trial {} is not in the kit's {} index ({} lists trials 1..={})",
@@ -235,8 +235,8 @@ impl Labeller<'_> {
                 );
             }
             None
-        } else if register::has_sweeps(self.kit, &log.rows) {
-            Some(register::register(&self.session, self.kit, self.sensor, &log.rows, &reference)?)
+        } else if let Some(found) = register::register(&self.session, self.kit, self.sensor, &log.rows, &reference)? {
+            Some(found)
         } else if self.register {
             bail!(
                 "{}: --register needs z sweeps in the log (rows of one trial, tilts and B at {} or more z), and it \

@@ -92,10 +92,9 @@ pub fn label_error_mm(session: &Path, labelled: &Path, kit: &Kit, truth: &RigOff
         .samples
         .par_iter()
         .map(|sample| -> Result<(f64, usize)> {
-            let trial =
-                kit.trials.iter().find(|t| t.split == sample.split && t.number == sample.trial).with_context(|| {
-                    format!("sample {}: trial {} {} not in the kit", sample.id, sample.split, sample.trial)
-                })?;
+            let trial = kit.trial(sample.split, sample.trial).with_context(|| {
+                format!("sample {}: trial {} {} not in the kit", sample.id, sample.split, sample.trial)
+            })?;
             let row = sample.capture.as_ref().with_context(|| format!("sample {} has no capture row", sample.id))?;
             let logged =
                 *by_line.get(&row.line).with_context(|| format!("{}: no line {}", log.path.display(), row.line))?;

@@ -90,6 +90,18 @@ pub(crate) struct Seen<'a> {
     pub indenters_only: bool,
 }
 
+impl Seen<'_> {
+    /// The parts of `scene` that count: all, or its indenters alone (the indicator's shell is
+    /// its first part).
+    pub(crate) fn parts<'s>(&self, scene: &'s crate::scene::Scene) -> Vec<&'s crate::mesh::Mesh> {
+        let mut parts = scene.part_refs();
+        if self.indenters_only && parts.len() > 1 {
+            parts.remove(0);
+        }
+        parts
+    }
+}
+
 /// [`first_touch_mm`] on a rig with errors `rig` (its B zero and mount; z zeros are left out:
 /// the travel returned is the rig's true one), searched within `bracket_mm` (an error if the
 /// assembly touches at its low end or never at its high end), counting what `seen` counts.
@@ -108,11 +120,7 @@ pub(crate) fn first_touch_in(
     let touches = |z: f32| -> Result<bool> {
         let pose = RigPose { z_travel_mm: z, b_axis_deg: pose.b_axis_deg + rig.b_zero_deg, ..pose };
         let scene = build_scene_in(kit, trial, pose, mount)?;
-        let mut parts = scene.part_refs();
-        if seen.indenters_only && parts.len() > 1 {
-            parts.remove(0);
-        }
-        let caster = RayCaster::new(&parts, sensor.radius_mm, Skipping::On);
+        let caster = RayCaster::new(&seen.parts(&scene), sensor.radius_mm, Skipping::On);
         let (depth, _) = caster.depth_map(sensor, rays);
         Ok(match seen.within {
             None => depth.depth_mm.iter().any(|&d| d > 0.0),

@@ -365,7 +365,7 @@ fn logs_counting_z_from_first_touch_or_a_machine_zero_label_alike() {
     let touch: Vec<f32> = original
         .iter()
         .map(|r| {
-            let trial = kit.trials.iter().find(|t| t.split == r.split && t.number == r.trial).unwrap();
+            let trial = kit.trial(r.split, r.trial).unwrap();
             dataset::touch::first_touch_mm(&kit, trial, r.pose, &unit, &rays).unwrap()
         })
         .collect();

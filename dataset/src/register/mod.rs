@@ -92,7 +92,7 @@ fn sweeps<'k>(kit: &'k Kit, rows: &[Capture]) -> (Vec<SweepRows<'k>>, Vec<String
     let mut groups: Vec<SweepRows> = Vec::new();
     let mut index = BTreeMap::new();
     for r in rows {
-        let Some(trial) = kit.trials.iter().find(|t| t.split == r.split && t.number == r.trial) else { continue };
+        let Some(trial) = kit.trial(r.split, r.trial) else { continue };
         let p = r.pose;
         let key = (trial_key(r.split, r.trial), p.a_axis_deg.to_bits(), p.b_axis_deg.to_bits(), p.c_axis_deg.to_bits());
         let k = *index.entry(key).or_insert_with(|| {
@@ -112,11 +112,6 @@ fn sweeps<'k>(kit: &'k Kit, rows: &[Capture]) -> (Vec<SweepRows<'k>>, Vec<String
         keep
     });
     (groups, short)
-}
-
-/// Whether the log holds any sweep to register from.
-pub fn has_sweeps(kit: &Kit, rows: &[Capture]) -> bool {
-    !sweeps(kit, rows).0.is_empty()
 }
 
 /// The touch a camera shows: an indenter's, on the useful disk.
@@ -139,10 +134,8 @@ fn predict(
     let pose =
         RigPose { z_travel_mm: touch + PROBE_MM, b_axis_deg: sweep.pose.b_axis_deg + rig.b_zero_deg, ..sweep.pose };
     let scene = build_scene_in(kit, sweep.trial, pose, rig.mount())?;
-    let mut parts = scene.part_refs();
-    if parts.len() > 1 {
-        parts.remove(0); // the indenters alone, as `seen` counts the touch
-    }
+    // The contact of the parts whose touch was counted.
+    let parts = seen(mask).parts(&scene);
     let (depth, _) = RayCaster::new(&parts, sensor.radius_mm, Skipping::On).depth_map(sensor, rays);
     let centroid =
         blob_centroid(sensor.crop_size_px as usize, |p| if mask[p] { depth.depth_mm[p] as f64 } else { 0.0 })
@@ -162,8 +155,8 @@ fn offsets_of(theta: &[f64]) -> RigOffsets {
     }
 }
 
-/// One sweep measured and linearised: its onset, the cast's touch and centroid at the log's
-/// offsets, and their derivatives along each offset.
+/// One sweep linearised: the cast's touch and centroid at the current offsets, and their
+/// derivatives along each offset.
 struct Linearised {
     touch_mm: f64,
     centroid_px: [f64; 2],
@@ -196,16 +189,19 @@ fn linearise(
 /// Linearisations: the second about the first's estimate.
 const GAUSS_NEWTON_PASSES: usize = 2;
 
-/// Estimates the rig's offsets from the session's sweeps. `rows` are the log's parsed rows;
-/// frames are read as crops of `sensor` relative to `session`.
+/// Estimates the rig's offsets from the session's sweeps (`None`: the log has no sweep). `rows`
+/// are the log's parsed rows; frames are read as crops of `sensor` relative to `session`.
 pub fn register(
     session: &Path,
     kit: &Kit,
     sensor: &Sensor,
     rows: &[Capture],
     reference: &RgbImage,
-) -> Result<Registration> {
+) -> Result<Option<Registration>> {
     let (groups, mut left_out) = sweeps(kit, rows);
+    if groups.is_empty() {
+        return Ok(None);
+    }
     let mask = sensor.valid_mask();
     let rays = RayBundle::new(sensor);
     let n = sensor.crop_size_px as usize;
@@ -286,17 +282,14 @@ pub fn register(
             .push(format!("{}: disagrees with the other sweeps ({residual:.1} standard deviations)", used[i].0.name()));
     }
     let sweeps_used = kept.len();
-    let trials: std::collections::BTreeSet<String> = rows
-        .iter()
-        .filter(|r| kit.trials.iter().any(|t| t.split == r.split && t.number == r.trial))
-        .map(|r| trial_key(r.split, r.trial))
-        .collect();
+    let trials: std::collections::BTreeSet<String> =
+        rows.iter().filter(|r| kit.trial(r.split, r.trial).is_some()).map(|r| trial_key(r.split, r.trial)).collect();
     let (offsets, sd) = match solution {
         Some(s) => (s.offsets, s.sd),
         None => (RigOffsets::default(), RigOffsets::default()),
     };
     let unswept_trials = trials.into_iter().filter(|t| !offsets.z_zero_by_trial_mm.contains_key(t)).collect();
-    Ok(Registration { offsets, sd, sweeps: sweeps_used, left_out, unswept_trials })
+    Ok(Some(Registration { offsets, sd, sweeps: sweeps_used, left_out, unswept_trials }))
 }
 
 struct Solution {
@@ -344,7 +337,7 @@ fn solve(used: &[(&SweepRows, Onset)], lin: &[&Linearised], theta0: &[f64; 5]) -
         b[3 * used.len() + k] = -theta0[k] / PRIOR_SD[k];
     }
     let normal = a.transpose() * &a;
-    let chol = normal.clone().cholesky()?;
+    let chol = normal.cholesky()?;
     let u = chol.solve(&(a.transpose() * &b));
     let residual = &a * &u - &b;
     let dof = (equations as f64 - unknowns as f64).max(1.0);

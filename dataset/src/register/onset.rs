@@ -1,6 +1,7 @@
 //! What a sweep's frames show: where the image first departs from the untouched frames (the
 //! logged z of first touch) and where on the image the change sits.
 
+use formats::stats::Summary;
 use image::RgbImage;
 
 use super::PROBE_MM;
@@ -91,7 +92,7 @@ pub(super) fn onset(frames: &[RgbImage], maps: &[Vec<f32>], z_mm: &[f32], n: usi
         }
     }
     let peaks: Vec<f64> = maps.iter().map(|m| m.iter().fold(0f32, |a, &b| a.max(b)) as f64).collect();
-    let (mu, sd) = mean_sd(&peaks[..BASELINE_FRAMES]);
+    let Summary { mean: mu, sd, .. } = Summary::of(peaks[..BASELINE_FRAMES].iter().copied());
     if sd > BASELINE_SPREAD * mu {
         return Err(format!(
             "the change's peak over the first {BASELINE_FRAMES} frames spreads by {:.0} % of its mean (noise alone: \
@@ -119,7 +120,7 @@ pub(super) fn onset(frames: &[RgbImage], maps: &[Vec<f32>], z_mm: &[f32], n: usi
         return Err("the sweep ends too soon after its onset to fit it".into());
     }
     let c = project(frames, &base, maps, t, n);
-    let (_, c_sd) = mean_sd(&c[..BASELINE_FRAMES]);
+    let c_sd = Summary::of(c[..BASELINE_FRAMES].iter().copied()).sd;
     // The growth law is the gel's and the camera's: the exponent that explains the frames
     // from just before the onset to the template best is chosen, and the onset is where that
     // curve starts.
@@ -212,13 +213,6 @@ fn project(frames: &[RgbImage], base: &[f32], maps: &[Vec<f32>], t: usize, n: us
     let template = values(&frames[t]);
     let norm: f64 = template.iter().map(|&v| (v as f64).powi(2)).sum::<f64>().max(f64::MIN_POSITIVE);
     frames.iter().map(|f| values(f).iter().zip(&template).map(|(&a, &b)| (a * b) as f64).sum::<f64>() / norm).collect()
-}
-
-/// Mean and sample standard deviation.
-fn mean_sd(values: &[f64]) -> (f64, f64) {
-    let k = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / k;
-    (mean, (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (k - 1.0).max(1.0)).sqrt())
 }
 
 /// Least-squares line `y = a + b x`: a, b, var a, var b, cov(a, b) (from the residuals).
