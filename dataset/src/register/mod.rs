@@ -11,8 +11,9 @@
 //! which an indenter first meets the useful disk, and its contact's centroid), and, linearised
 //! about the log and then about the first answer, the sweeps' onsets and centroids give the
 //! offsets by weighted least squares. Sweeps that start touched, never change, fit no growth
-//! law, or disagree with the rest (beyond five a priori standard deviations, the worst first,
-//! up to a quarter) are named and left out.
+//! law, that the ray cast cannot follow (no first touch near the logged one under candidate
+//! offsets), or that disagree with the rest (beyond five a priori standard deviations, the worst
+//! first, up to a quarter) are named and left out.
 //!
 //! Measured against the truth on the renderer's sweeps of the authors' kit (`cargo xtask bench
 //! register`, BENCHMARKS.md): onsets 0.002 mm late on average, scattering by 0.02 mm. On the
@@ -229,42 +230,48 @@ pub fn register(
         }
     }
     // The log's first touches, found over the whole travel once; later casts search near them.
+    // A sweep the cast cannot follow (no first touch in its travel or near it under candidate
+    // offsets) is left out, named, rather than stop the labels.
     let full = (MIN_Z_TRAVEL_MM, sensor.max_depth_mm as f32);
-    let logged: Vec<f32> = used
+    let logged: Vec<Result<f32>> = used
         .par_iter()
-        .map(|(g, _)| {
-            first_touch_in(kit, g.trial, g.pose, &RigOffsets::default(), sensor, &rays, full, seen(&mask))
-                .with_context(|| g.name())
-        })
-        .collect::<Result<_>>()?;
+        .map(|(g, _)| first_touch_in(kit, g.trial, g.pose, &RigOffsets::default(), sensor, &rays, full, seen(&mask)))
+        .collect();
+    let mut cast = Vec::new();
+    for ((g, o), t) in used.into_iter().zip(logged) {
+        match t {
+            Ok(t) => cast.push((g, o, t)),
+            Err(e) => left_out.push(format!("{}: the ray cast finds no first touch for its log: {e:#}", g.name())),
+        }
+    }
     let mut theta = [0.0; 5];
     let mut solution = None;
     let mut kept = Vec::new();
     let mut disagree = Vec::new();
+    let mut uncast = Vec::new();
     for _ in 0..GAUSS_NEWTON_PASSES {
         // Every measured sweep, linearised about the current estimate: one that disagreed about
         // the log's offsets may agree about better ones (which indenter touches first can change).
-        let lin: Vec<Linearised> = used
+        let lin: Vec<Result<Linearised>> = cast
             .par_iter()
-            .zip(&logged)
-            .map(|((g, _), &t)| {
-                linearise(kit, g, &theta, sensor, &rays, &mask, (t - 1.5, t + 1.5)).with_context(|| g.name())
-            })
-            .collect::<Result<_>>()?;
+            .map(|(g, _, t)| linearise(kit, g, &theta, sensor, &rays, &mask, (t - 1.5, t + 1.5)))
+            .collect();
+        uncast = lin.iter().enumerate().filter_map(|(i, l)| Some((i, format!("{:#}", l.as_ref().err()?)))).collect();
         // Sweeps that disagree with the rest are left out one at a time, the worst first (a
         // sweep whose touch the image shows late, or whose contact it places elsewhere), up to
         // a quarter of them.
-        let mut index: Vec<usize> = (0..used.len()).collect();
+        let mut index: Vec<usize> = (0..cast.len()).filter(|&i| lin[i].is_ok()).collect();
         disagree.clear();
         let pick = |index: &[usize]| -> (Vec<(&SweepRows, Onset)>, Vec<&Linearised>) {
-            (index.iter().map(|&i| (used[i].0, used[i].1)).collect(), index.iter().map(|&i| &lin[i]).collect())
+            let lin = index.iter().filter_map(|&i| lin[i].as_ref().ok()).collect();
+            (index.iter().map(|&i| (cast[i].0, cast[i].1)).collect(), lin)
         };
         let (sub, sub_lin) = pick(&index);
         let mut s = solve(&sub, &sub_lin, &theta);
         while let Some(sol) = &s {
             let (worst, residual) =
                 sol.worst_residual.iter().copied().enumerate().max_by(|a, b| a.1.total_cmp(&b.1)).unwrap_or((0, 0.0));
-            if residual <= DISAGREE_SIGMAS || 4 * (disagree.len() + 1) > used.len() {
+            if residual <= DISAGREE_SIGMAS || 4 * (disagree.len() + 1) > cast.len() {
                 break;
             }
             disagree.push((index.remove(worst), residual));
@@ -279,7 +286,10 @@ pub fn register(
     }
     for &(i, residual) in &disagree {
         left_out
-            .push(format!("{}: disagrees with the other sweeps ({residual:.1} standard deviations)", used[i].0.name()));
+            .push(format!("{}: disagrees with the other sweeps ({residual:.1} standard deviations)", cast[i].0.name()));
+    }
+    for (i, why) in uncast {
+        left_out.push(format!("{}: the ray cast cannot follow it near the estimated offsets: {why}", cast[i].0.name()));
     }
     let sweeps_used = kept.len();
     let trials: std::collections::BTreeSet<String> =
