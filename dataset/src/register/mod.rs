@@ -262,9 +262,9 @@ pub fn register(
         // a quarter of them.
         let mut index: Vec<usize> = (0..cast.len()).filter(|&i| lin[i].is_ok()).collect();
         disagree.clear();
+        // Each sweep beside its own linearisation, so the two lists cannot fall out of step.
         let pick = |index: &[usize]| -> (Vec<(&SweepRows, Onset)>, Vec<&Linearised>) {
-            let lin = index.iter().filter_map(|&i| lin[i].as_ref().ok()).collect();
-            (index.iter().map(|&i| (cast[i].0, cast[i].1)).collect(), lin)
+            index.iter().filter_map(|&i| Some(((cast[i].0, cast[i].1), lin[i].as_ref().ok()?))).unzip()
         };
         let (sub, sub_lin) = pick(&index);
         let mut s = solve(&sub, &sub_lin, &theta);
