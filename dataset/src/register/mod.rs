@@ -12,8 +12,8 @@
 //! about the log and then about the first answer, the sweeps' onsets and centroids give the
 //! offsets by weighted least squares. Sweeps that start touched, never change, fit no growth
 //! law, that the ray cast cannot follow (no first touch near the logged one under candidate
-//! offsets), or that disagree with the rest (beyond five a priori standard deviations, the worst
-//! first, up to a quarter) are named and left out.
+//! offsets), or that disagree with what the others predict (beyond five standard deviations of
+//! that prediction, the worst first, up to a quarter) are named and left out.
 //!
 //! Measured against the truth on the renderer's sweeps of the authors' kit (`cargo xtask bench
 //! register`, BENCHMARKS.md): onsets 0.002 mm late on average, scattering by 0.02 mm. On the
@@ -53,8 +53,8 @@ const STEPS: [f32; 5] = [0.25, 0.25, 0.5, 0.5, 1.0];
 /// Weak priors on the mount (one sd, mm and degrees): three times the limits a rig shows, so
 /// that a session whose sweeps cannot tell an offset apart still solves, at zero.
 const PRIOR_SD: [f64; 5] = [1.5, 1.5, 3.0, 3.0, 6.0];
-/// Sweeps with a residual beyond this many a priori standard deviations disagree with the
-/// rest and are left out.
+/// A sweep this many standard deviations off what the other sweeps predict for it disagrees
+/// with them and is left out.
 const DISAGREE_SIGMAS: f64 = 5.0;
 
 /// The offsets estimated from a session's frames.
@@ -257,26 +257,40 @@ pub fn register(
             .map(|(g, _, t)| linearise(kit, g, &theta, sensor, &rays, &mask, (t - 1.5, t + 1.5)))
             .collect();
         uncast = lin.iter().enumerate().filter_map(|(i, l)| Some((i, format!("{:#}", l.as_ref().err()?)))).collect();
-        // Sweeps that disagree with the rest are left out one at a time, the worst first (a
-        // sweep whose touch the image shows late, or whose contact it places elsewhere), up to
-        // a quarter of them.
+        // Sweeps that disagree with the rest (a sweep whose touch the image shows late, whose
+        // contact it places elsewhere, or a wrong line in the log) are left out one at a time,
+        // the worst first, up to a quarter of them.
         let mut index: Vec<usize> = (0..cast.len()).filter(|&i| lin[i].is_ok()).collect();
         disagree.clear();
         // Each sweep beside its own linearisation, so the two lists cannot fall out of step.
         let pick = |index: &[usize]| -> (Vec<(&SweepRows, Onset)>, Vec<&Linearised>) {
             index.iter().filter_map(|&i| Some(((cast[i].0, cast[i].1), lin[i].as_ref().ok()?))).unzip()
         };
-        let (sub, sub_lin) = pick(&index);
-        let mut s = solve(&sub, &sub_lin, &theta);
-        while let Some(sol) = &s {
-            let (worst, residual) =
-                sol.worst_residual.iter().copied().enumerate().max_by(|a, b| a.1.total_cmp(&b.1)).unwrap_or((0, 0.0));
-            if residual <= DISAGREE_SIGMAS || 4 * (disagree.len() + 1) > cast.len() {
+        let solve_over = |index: &[usize]| {
+            let (sub, sub_lin) = pick(index);
+            solve(&sub, &sub_lin, &theta)
+        };
+        let mut s = solve_over(&index);
+        // Each sweep is judged against the fit of the others: a sweep far off pulls a fit that
+        // holds it towards itself, so its residual there can look small while its good
+        // neighbours show the misfit.
+        while s.is_some() && 4 * (disagree.len() + 1) <= cast.len() {
+            let worst = (0..index.len())
+                .into_par_iter()
+                .filter_map(|j| {
+                    let rest: Vec<usize> = index.iter().enumerate().filter(|&(k, _)| k != j).map(|(_, &i)| i).collect();
+                    let others = solve_over(&rest)?;
+                    let i = index[j];
+                    let off = misfit(cast[i].0, &cast[i].1, lin[i].as_ref().ok()?, &others);
+                    Some((j, off, others))
+                })
+                .max_by(|a, b| a.1.total_cmp(&b.1));
+            let Some((j, off, others)) = worst else { break };
+            if off <= DISAGREE_SIGMAS {
                 break;
             }
-            disagree.push((index.remove(worst), residual));
-            let (sub, sub_lin) = pick(&index);
-            s = solve(&sub, &sub_lin, &theta);
+            disagree.push((index.remove(j), off));
+            s = Some(others);
         }
         if let Some(sol) = &s {
             theta = sol.theta;
@@ -285,8 +299,10 @@ pub fn register(
         kept = index;
     }
     for &(i, residual) in &disagree {
-        left_out
-            .push(format!("{}: disagrees with the other sweeps ({residual:.1} standard deviations)", cast[i].0.name()));
+        left_out.push(format!(
+            "{}: disagrees with the other sweeps ({residual:.1} standard deviations off what they say)",
+            cast[i].0.name()
+        ));
     }
     for (i, why) in uncast {
         left_out.push(format!("{}: the ray cast cannot follow it near the estimated offsets: {why}", cast[i].0.name()));
@@ -306,8 +322,11 @@ struct Solution {
     theta: [f64; 5],
     offsets: RigOffsets,
     sd: RigOffsets,
-    /// Each sweep's largest residual, in its a priori standard deviations.
-    worst_residual: Vec<f64>,
+    /// The solved unknowns (the offsets' change from the linearisation's, then the zeros), their
+    /// covariance, and each swept trial's place among them (after the five offsets).
+    unknowns: DVector<f64>,
+    covariance: DMatrix<f64>,
+    trials: BTreeMap<String, usize>,
 }
 
 /// Weighted least squares over the mount's five offsets and each swept trial's z zero.
@@ -327,19 +346,12 @@ fn solve(used: &[(&SweepRows, Onset)], lin: &[&Linearised], theta0: &[f64; 5]) -
     // Unknowns: the offsets' change from `theta0`, and the zeros.
     for (i, ((g, onset), m)) in used.iter().zip(lin).enumerate() {
         let t = 5 + trials[&trial_key(g.trial.split, g.trial.number)];
-        // Onset: logged first touch = the cast's true touch under the offsets - the trial's zero.
-        let w = 1.0 / onset.sd_mm;
-        for k in 0..5 {
-            a[(3 * i, k)] = w * m.d_touch[k];
-        }
-        a[(3 * i, t)] = -w;
-        b[3 * i] = w * (onset.z_mm - m.touch_mm);
-        for axis in 0..2 {
-            let row = 3 * i + 1 + axis;
-            for k in 0..5 {
-                a[(row, k)] = m.d_centroid[k][axis] / CENTROID_SD_PX;
+        for (r, (coefficients, zero, rhs)) in equations_of(onset, m).into_iter().enumerate() {
+            for (k, c) in coefficients.into_iter().enumerate() {
+                a[(3 * i + r, k)] = c;
             }
-            b[row] = (onset.centroid_px[axis] - m.centroid_px[axis]) / CENTROID_SD_PX;
+            a[(3 * i + r, t)] = zero;
+            b[3 * i + r] = rhs;
         }
     }
     for k in 0..5 {
@@ -354,9 +366,6 @@ fn solve(used: &[(&SweepRows, Onset)], lin: &[&Linearised], theta0: &[f64; 5]) -
     let scale = (residual.norm_squared() / dof).max(1.0);
     let cov = chol.inverse() * scale;
     let sd_of = |k: usize| cov[(k, k)].max(0.0).sqrt();
-    // In the a priori standard deviations: a sweep far off stands out however many there are.
-    let worst_residual =
-        (0..used.len()).map(|i| (0..3).map(|r| residual[3 * i + r].abs()).fold(0.0, f64::max)).collect();
     let theta: [f64; 5] = std::array::from_fn(|k| theta0[k] + u[k]);
     let sds: Vec<f64> = (0..5).map(sd_of).collect();
     let mut offsets = offsets_of(&theta);
@@ -365,5 +374,42 @@ fn solve(used: &[(&SweepRows, Onset)], lin: &[&Linearised], theta0: &[f64; 5]) -
         offsets.z_zero_by_trial_mm.insert(key.clone(), u[5 + t] as f32);
         sd.z_zero_by_trial_mm.insert(key.clone(), sd_of(5 + t) as f32);
     }
-    Some(Solution { theta, offsets, sd, worst_residual })
+    Some(Solution { theta, offsets, sd, unknowns: u, covariance: cov, trials })
+}
+
+/// A sweep's three equations, in its a priori standard deviations: the coefficients on the
+/// offsets' change from the linearisation's, the one on its trial's z zero, and the right side.
+/// Onset: the logged first touch is the cast's touch under the offsets less the trial's zero;
+/// centroids: the image's contact where the cast puts it.
+fn equations_of(onset: &Onset, m: &Linearised) -> [([f64; 5], f64, f64); 3] {
+    let w = 1.0 / onset.sd_mm;
+    let centroid = |axis: usize| {
+        let coefficients = std::array::from_fn(|k| m.d_centroid[k][axis] / CENTROID_SD_PX);
+        (coefficients, 0.0, (onset.centroid_px[axis] - m.centroid_px[axis]) / CENTROID_SD_PX)
+    };
+    [(m.d_touch.map(|d| w * d), -w, w * (onset.z_mm - m.touch_mm)), centroid(0), centroid(1)]
+}
+
+/// How far a sweep left out of `solution` is from what it predicts, in standard deviations of
+/// that prediction (the worst of its equations): its own a priori one and the solution's
+/// uncertainty along the equation, so that a sweep alone in pinning an offset is not called
+/// off because the others cannot say where it should be. Its onset counts only where its
+/// trial's zero was solved from other sweeps (otherwise that zero would take it up whole).
+fn misfit(g: &SweepRows, onset: &Onset, m: &Linearised, solution: &Solution) -> f64 {
+    let zero = solution.trials.get(&trial_key(g.trial.split, g.trial.number));
+    let [onset_row, across, along] = equations_of(onset, m);
+    let miss = |(coefficients, c_zero, rhs): ([f64; 5], f64, f64), zero: Option<usize>| {
+        let mut row = DVector::<f64>::zeros(solution.unknowns.len());
+        row.rows_mut(0, 5).copy_from_slice(&coefficients);
+        if let Some(t) = zero {
+            row[5 + t] = c_zero;
+        }
+        let variance = 1.0 + (row.transpose() * &solution.covariance * &row)[(0, 0)];
+        (row.dot(&solution.unknowns) - rhs).abs() / variance.sqrt()
+    };
+    let lateral = miss(across, None).max(miss(along, None));
+    match zero {
+        Some(&t) => lateral.max(miss(onset_row, Some(t))),
+        None => lateral,
+    }
 }
