@@ -106,7 +106,7 @@ impl RunView {
 
 #[cfg(not(feature = "view"))]
 impl RunView {
-    pub fn open(target: &view::Target) -> Result<Self> {
+    pub fn open(target: &view::Target, _: &DepthDataset) -> Result<Self> {
         anyhow::bail!("{target:?}: this build has no live view; build it with `--features view`")
     }
 

@@ -19,6 +19,8 @@ pub enum Target {
 }
 
 impl Target {
+    /// The target in words, for the recorder's errors.
+    #[cfg(feature = "rerun")]
     pub(crate) fn describe(&self) -> String {
         match self {
             Target::Spawn => "a Rerun viewer".into(),
