@@ -2,7 +2,7 @@
 operator and by node, from ONNX Runtime's own profiler (CPU, the thread count given). Not part of
 CI. Needs: pip install onnxruntime numpy (and torch, torchvision for --export-reference).
 
-usage: python onnx_runtime_profile.py MODEL.onnx --height 480 --width 640 --threads 2
+usage: python onnx_runtime_profile.py MODEL.onnx --height 480 --width 640 --threads 2 [--channels 6]
        [--export-reference]   # first write MODEL.onnx: the reference DenseDepth-161 by torch.onnx
 Nodes are split by name: those with "decoder" in it (our export's `decoder.up1.conv_a`, PyTorch's
 `/decoder/up1/convA/Conv`) against the rest.
@@ -15,6 +15,7 @@ import onnxruntime as ort
 ap = argparse.ArgumentParser()
 ap.add_argument("model"); ap.add_argument("--height", type=int, default=480); ap.add_argument("--width", type=int, default=640)
 ap.add_argument("--threads", type=int, default=2); ap.add_argument("--reps", type=int, default=4)
+ap.add_argument("--channels", type=int, default=3)
 ap.add_argument("--export-reference", action="store_true")
 a = ap.parse_args()
 if a.export_reference:
@@ -29,7 +30,7 @@ options.inter_op_num_threads = 1
 options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
 # The profiler's JSON goes to the temporary folder and is removed once read.
 options.profile_file_prefix = os.path.join(tempfile.gettempdir(), "densetact_ort_profile")
-x = np.random.default_rng(0).random((1, 3, a.height, a.width), dtype=np.float32)
+x = np.random.default_rng(0).random((1, a.channels, a.height, a.width), dtype=np.float32)
 
 
 def session(profile):
@@ -43,7 +44,7 @@ s.run(None, {name: x})
 times = []
 for _ in range(a.reps):
     t = time.perf_counter(); s.run(None, {name: x}); times.append((time.perf_counter() - t) * 1e3)
-print(f"forward ms, median of {a.reps} without the profiler: {statistics.median(times):.0f}")
+print(f"forward ms, median of {a.reps} without the profiler: {statistics.median(times):.3f}")
 
 s, name = session(True)
 for _ in range(a.reps):
@@ -53,7 +54,7 @@ with open(profile) as f:
     events = json.load(f)
 os.remove(profile)
 nodes = [e for e in events if e.get("cat") == "Node" and e["name"].endswith("_kernel_time")]
-part, by_op, by_node = collections.Counter(), collections.Counter(), collections.Counter()
+part, by_op, by_node, by_stage = collections.Counter(), collections.Counter(), collections.Counter(), collections.Counter()
 for e in nodes:
     node = e["name"][: -len("_kernel_time")]
     side = "decoder" if "decoder" in node else "encoder"
@@ -61,8 +62,12 @@ for e in nodes:
     part[side] += ms
     by_op[f"{side} {e['args'].get('op_name', '?')}"] += ms
     by_node[node] += ms
-print("kernel ms per forward (profiled): " + ", ".join(f"{k} {v:.0f}" for k, v in sorted(part.items())))
+    by_stage[".".join(node.split(".")[:2])] += ms
+print("kernel ms per forward (profiled): " + ", ".join(f"{k} {v:.3f}" for k, v in sorted(part.items())))
 for k, v in by_op.most_common(8):
-    print(f"{v:8.1f} ms  {k}")
+    print(f"{v:8.3f} ms  {k}")
 for k, v in by_node.most_common(12):
-    print(f"{v:8.1f} ms  {k}")
+    print(f"{v:8.3f} ms  {k}")
+print("by stage (the node names' first two parts):")
+for k, v in sorted(by_stage.items()):
+    print(f"{v:8.3f} ms  {k}")

@@ -58,6 +58,11 @@ pub struct Args {
     /// Measure the forward pass only (for profiling).
     #[arg(long)]
     forward_only: bool,
+    /// Also time each stage of the inference forward (stem, dense blocks, transitions, decoder
+    /// blocks, heads): median and quartiles over the repetitions, to set beside ONNX Runtime's
+    /// profile of the same stages (`xtask/peers/onnx_runtime_profile.py`).
+    #[arg(long)]
+    stages: bool,
     /// Where Burn runs: flex (default), wgpu, cuda, cuda:N; several, comma-separated, share each
     /// training batch (data parallel; the forward pass runs on the first). With a GPU the peer
     /// runs on PyTorch's first CUDA device.
@@ -138,6 +143,9 @@ pub fn run(args: Args) -> Result<()> {
             forward.median - encoder_ms.median
         );
 
+        if args.stages {
+            print_stages(&net, &images, args.reps);
+        }
         if args.forward_only {
             rows.push((batch, forward, None));
             continue;
@@ -378,6 +386,18 @@ fn run_peer(python: &str, script: &str, args: &[&str]) -> Result<Vec<String>> {
 /// The description the ONNX export's metadata carries, for a benchmark's untrained network.
 fn model_bundle_file(config: &DenseDepthConfig, [h, w]: [usize; 2]) -> model::bundle::BundleFile {
     model::bundle::BundleFile::new(config.clone(), [h, w], sensor::Sensor::default(), model::DepthScale::paper(9.4))
+}
+
+/// Each stage's milliseconds of the inference forward over `reps` runs (after one warm-up).
+fn print_stages(net: &model::DenseDepth, images: &Tensor<4>, reps: usize) {
+    let _ = net.stage_ms(images.clone());
+    let runs: Vec<Vec<(&'static str, f64)>> = (0..reps.max(1)).map(|_| net.stage_ms(images.clone())).collect();
+    let total = Summary::of(runs.iter().map(|r| r.iter().map(|s| s.1).sum::<f64>()));
+    println!("  stages (ms, median [quartiles]; their sum {}):", total.median_and_quartiles());
+    for (k, (name, _)) in runs[0].iter().enumerate() {
+        let ms = Summary::of(runs.iter().map(|r| r[k].1));
+        println!("    {name:<22} {}", ms.median_and_quartiles());
+    }
 }
 
 #[cfg(test)]

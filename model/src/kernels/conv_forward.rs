@@ -35,12 +35,43 @@ fn valid_span(output: usize, input: usize, tap: usize, padding: usize, stride: u
     lo.min(hi)..hi
 }
 
+/// A strided convolution's input with each row's columns dealt into `stride` phases (the
+/// columns `q, q + stride, q + 2 stride, ...` side by side for each `q`, `phase_len` each), so
+/// that a tap's values along a row are contiguous: the gather then copies runs instead of
+/// reading every `stride`-th value (the stem's 7x7 stride-2 gather took most of its time).
+struct Phases {
+    values: Vec<f32>,
+    phase_len: usize,
+}
+
+impl Phases {
+    fn of(image: &[f32], s: &ConvShape) -> Self {
+        let (st, w) = (s.stride, s.width.max(1));
+        let phase_len = w.div_ceil(st);
+        let mut values = vec![0.0; image.len() / w * st * phase_len];
+        for (src, dst) in image.chunks_exact(w).zip(values.chunks_exact_mut(st * phase_len)) {
+            for (q, phase) in dst.chunks_exact_mut(phase_len).enumerate() {
+                phase.iter_mut().zip(src[q.min(w)..].iter().step_by(st)).for_each(|(d, v)| *d = *v);
+            }
+        }
+        Phases { values, phase_len }
+    }
+
+    /// The values of row `row` (of all channels' rows) at columns `start, start + stride, ...`.
+    fn run(&self, row: usize, start: usize, len: usize, stride: usize) -> &[f32] {
+        let base = row * stride * self.phase_len + (start % stride) * self.phase_len + start / stride;
+        &self.values[base..base + len]
+    }
+}
+
 /// Rows `channels` x taps of the gathered input for output positions `cols`: row
 /// `(ic - channels.start) * k * k + tap`, column `j` holds the value under `tap` for output
 /// position `cols.start + j` (zero in the padding), through the prologue if there is one.
+/// `phases`: the image dealt into phases, which a strided convolution reads instead of `image`.
 fn gather(
     into: &mut [f32],
     image: &[f32],
+    phases: Option<&Phases>,
     s: &ConvShape,
     prologue: Option<Prologue>,
     channels: Range<usize>,
@@ -52,6 +83,7 @@ fn gather(
     for (i, ic) in channels.enumerate() {
         let input = &image[ic * plane..][..plane];
         let (scale, shift) = prologue.map_or((1.0, 0.0), |q| (q.scale[ic], q.shift[ic]));
+        let normalise = |d: &mut f32, v: &f32| *d = (v * scale + shift).max(0.0);
         for tap in 0..k * k {
             let row = &mut into[(i * k * k + tap) * n..][..n];
             let (ky, kx) = (tap / k, tap % k);
@@ -67,19 +99,19 @@ fn gather(
                 } else {
                     dst[..lo - x0].fill(0.0);
                     dst[hi - x0..].fill(0.0);
-                    let src = &input[(y * st + ky - p) * s.width..][..s.width];
+                    let row = y * st + ky - p;
                     let start = lo * st + kx - p;
                     let dst = &mut dst[lo - x0..hi - x0];
-                    match (prologue.is_some(), st) {
-                        (false, 1) => dst.copy_from_slice(&src[start..start + dst.len()]),
-                        (false, _) => dst.iter_mut().zip(src[start..].iter().step_by(st)).for_each(|(d, v)| *d = *v),
-                        (true, 1) => {
-                            dst.iter_mut().zip(&src[start..]).for_each(|(d, v)| *d = (v * scale + shift).max(0.0))
+                    let src = match phases {
+                        Some(phases) => phases.run(ic * s.height + row, start, dst.len(), st),
+                        None => {
+                            debug_assert_eq!(st, 1, "a strided gather reads the phases");
+                            &input[row * s.width + start..][..dst.len()]
                         }
-                        (true, _) => dst
-                            .iter_mut()
-                            .zip(src[start..].iter().step_by(st))
-                            .for_each(|(d, v)| *d = (v * scale + shift).max(0.0)),
+                    };
+                    match prologue {
+                        None => dst.copy_from_slice(src),
+                        Some(_) => dst.iter_mut().zip(src).for_each(|(d, v)| normalise(d, v)),
                     }
                 }
                 pos += x1 - x0;
@@ -127,6 +159,7 @@ fn forward_image_with(
     let block = (GATHER_ROWS / kk).clamp(1, c.max(1));
     let dst = SharedMut(out.as_mut_ptr());
     let max = if in_place { POINTWISE_COLUMNS } else { GATHER_COLUMNS };
+    let phases = (!in_place && s.stride > 1).then(|| Phases::of(image, s));
     column_chunks(positions, 64, max).into_par_iter().for_each(|cols| {
         let n = cols.len();
         if in_place {
@@ -151,7 +184,7 @@ fn forward_image_with(
                 for c0 in (0..c).step_by(block) {
                     let channels = c0..(c0 + block).min(c);
                     let rows = channels.len() * kk;
-                    gather(&mut buf[..rows * n], image, s, prologue, channels, cols.clone());
+                    gather(&mut buf[..rows * n], image, phases.as_ref(), s, prologue, channels, cols.clone());
                     // SAFETY: as above; the weight's columns `c0 * kk ..` of row stride `c * kk`.
                     unsafe {
                         matmul(

@@ -11,7 +11,8 @@
 //!   F(2x2, 3x3) (`winograd`);
 //! - a dense block's eval-mode forward in one preallocated stack (`dense_block`);
 //! - eval-mode and training-mode batch norm + ReLU in one pass (`norm_relu`, `batch_norm_train`);
-//! - the stem's max pool (`pool`) and the decoder's upsample + concatenation (`upsample`).
+//! - the stem's max pool and a transition's batch norm + ReLU + average pool (`pool`), and the
+//!   decoder's upsample + concatenation (`upsample`).
 
 use burn::nn::BatchNorm;
 use burn::nn::conv::Conv2d;
@@ -50,7 +51,7 @@ mod winograd;
 pub(crate) use batch_norm_train::norm_relu;
 pub(crate) use conv::conv2d_act;
 pub(crate) use norm_relu::inference_affine;
-pub(crate) use pool::max_pool2d;
+pub(crate) use pool::{max_pool2d, norm_relu_avg_pool2};
 pub use shared::Activation;
 pub(crate) use upsample::{taps as bilinear_taps, upsample_concat};
 

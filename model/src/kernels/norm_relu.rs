@@ -45,24 +45,31 @@ pub(crate) fn scale_shift_relu_flex(x: &FlexTensor, scale: &[f32], shift: &[f32]
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::kernels::norm_relu;
     use burn::nn::BatchNormConfig;
     use burn::tensor::activation::relu;
     use burn::tensor::{Distribution, Tolerance};
 
+    /// A batch norm of `channels` with random running statistics and affine parameters away
+    /// from their defaults, which the fused kernels are checked with.
+    pub(crate) fn random_norm(channels: usize, device: &burn::tensor::Device) -> burn::nn::BatchNorm {
+        let mut norm = BatchNormConfig::new(channels).init(device);
+        let random = |low, high| Tensor::<1>::random([channels], Distribution::Uniform(low, high), device);
+        norm.gamma = burn::module::Param::from_tensor(random(-2.0, 2.0));
+        norm.beta = burn::module::Param::from_tensor(random(-1.0, 1.0));
+        norm.running_mean = burn::module::RunningState::new(random(-1.0, 1.0));
+        norm.running_var = burn::module::RunningState::new(random(0.1, 3.0));
+        norm
+    }
+
     /// Against Burn's inference batch norm and ReLU, with running statistics and affine
     /// parameters away from their defaults, on a 4-d and a 3-d input.
     #[test]
     fn one_pass_equals_burns_batch_norm_and_relu() {
         let device = crate::backend::default_device();
-        let mut norm = BatchNormConfig::new(5).init(&device);
-        let random = |low, high| Tensor::<1>::random([5], Distribution::Uniform(low, high), &device);
-        norm.gamma = burn::module::Param::from_tensor(random(-2.0, 2.0));
-        norm.beta = burn::module::Param::from_tensor(random(-1.0, 1.0));
-        norm.running_mean = burn::module::RunningState::new(random(-1.0, 1.0));
-        norm.running_var = burn::module::RunningState::new(random(0.1, 3.0));
+        let norm = random_norm(5, &device);
         let x = Tensor::<4>::random([2, 5, 3, 7], Distribution::Normal(0.0, 2.0), &device);
         let expected = relu(norm.forward(x.clone())).into_data();
         norm_relu(&norm, x.clone()).into_data().assert_approx_eq::<f32>(&expected, Tolerance::rel_abs(1e-5, 1e-6));

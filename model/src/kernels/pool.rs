@@ -1,4 +1,4 @@
-//! Eval-mode max pooling on flex.
+//! Eval-mode max pooling, and a transition's batch norm, ReLU and average pooling, on flex.
 //!
 //! Burn's generic pooling kernel took 67 ms for DenseNet's stem pool (3x3, stride 2, padding 1,
 //! 96 channels at 240x320), as much as a tenth of the encoder. Here each output row is the
@@ -6,12 +6,14 @@
 //! strided maximum along that row. Anywhere else (autodiff, other backends or dtypes, dilation,
 //! ceil mode) it is Burn's `MaxPool2d::forward`.
 
-use burn::nn::pool::MaxPool2d;
+use burn::nn::BatchNorm;
+use burn::nn::pool::{AvgPool2d, MaxPool2d};
 use burn::tensor::Tensor;
 use rayon::prelude::*;
 
 use super::conv::symmetric_padding;
 use super::flex::{flex_f32, flex_tensor, from_flex, slice};
+use super::norm_relu::inference_affine;
 
 /// A square pooling window.
 #[derive(Clone, Copy, Debug)]
@@ -71,12 +73,80 @@ pub(crate) fn max_pool2d(pool: &MaxPool2d, x: Tensor<4>) -> Tensor<4> {
     }
 }
 
+/// `avg_pool_2x2(relu(x * scale[c] + shift[c]))` for planes of `h * w` values, channel after
+/// channel (`scale.len()` of them), image after image: a transition's normalisation and pooling
+/// in one pass that writes only the pooled quarter. An odd last row or column is dropped, as
+/// the pool's floor does.
+fn norm_relu_avg_pool2_planes(x: &[f32], [h, w]: [usize; 2], scale: &[f32], shift: &[f32]) -> Vec<f32> {
+    let (ho, wo) = (h / 2, w / 2);
+    let mut out = vec![0.0f32; x.len() / (h * w).max(1) * ho * wo];
+    if out.is_empty() {
+        return out;
+    }
+    // Planes in groups of about 16k input values: a small transition is a few tasks, not one
+    // per channel.
+    let group = (16384 / (h * w)).max(1);
+    out.par_chunks_mut(group * ho * wo).zip(x.par_chunks(group * h * w)).enumerate().for_each(|(g, (dst, src))| {
+        for (k, (dst, plane)) in dst.chunks_exact_mut(ho * wo).zip(src.chunks_exact(h * w)).enumerate() {
+            let c = (g * group + k) % scale.len();
+            let (s, t) = (scale[c], shift[c]);
+            let f = |v: f32| (v * s + t).max(0.0);
+            for (oy, row) in dst.chunks_exact_mut(wo).enumerate() {
+                let (a, b) = (&plane[2 * oy * w..][..2 * wo], &plane[(2 * oy + 1) * w..][..2 * wo]);
+                for (ox, d) in row.iter_mut().enumerate() {
+                    *d = 0.25 * ((f(a[2 * ox]) + f(a[2 * ox + 1])) + (f(b[2 * ox]) + f(b[2 * ox + 1])));
+                }
+            }
+        }
+    });
+    out
+}
+
+/// `pool.forward(relu(norm(x)))` for a DenseNet transition, in one pass where `pool` is a 2x2,
+/// stride-2 average without padding and `x` f32 on flex outside autodiff; Burn's operations
+/// (through [`super::norm_relu`]) anywhere else.
+pub(crate) fn norm_relu_avg_pool2(norm: &BatchNorm, pool: &AvgPool2d, x: Tensor<4>) -> Tensor<4> {
+    let [n, c, h, w] = x.dims();
+    let plain = pool.kernel_size == [2, 2]
+        && pool.stride == [2, 2]
+        && symmetric_padding(&pool.padding) == Some(0)
+        && !pool.ceil_mode
+        && h >= 2
+        && w >= 2;
+    if let (true, Some(input)) = (plain, flex_f32(&x)) {
+        let (scale, shift) = inference_affine(norm);
+        if let (Some(scale), Some(shift)) = (flex_f32(&scale), flex_f32(&shift)) {
+            let out = norm_relu_avg_pool2_planes(slice(&input), [h, w], slice(&scale), slice(&shift));
+            return from_flex(flex_tensor(out, &[n, c, h / 2, w / 2]));
+        }
+    }
+    pool.forward(super::norm_relu(norm, x))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use burn::nn::PaddingConfig2d;
     use burn::nn::pool::MaxPool2dConfig;
     use burn::tensor::Distribution;
+
+    /// Against Burn's batch norm, ReLU and average pool, on even and odd sides (the odd row
+    /// and column dropped) and a batch of two, with statistics away from their defaults.
+    #[test]
+    fn the_transitions_pass_equals_burns_norm_relu_and_average_pool() {
+        use burn::nn::pool::AvgPool2dConfig;
+        use burn::tensor::Tolerance;
+        let device = crate::backend::default_device();
+        let norm = super::super::norm_relu::tests::random_norm(3, &device);
+        let pool = AvgPool2dConfig::new([2, 2]).with_strides([2, 2]).init();
+        for [h, w] in [[8, 10], [7, 9], [2, 3], [130, 129]] {
+            let x = Tensor::<4>::random([2, 3, h, w], Distribution::Normal(0.0, 2.0), &device);
+            let expected = pool.forward(burn::tensor::activation::relu(norm.forward(x.clone()))).into_data();
+            let got = norm_relu_avg_pool2(&norm, &pool, x);
+            assert_eq!(got.dims(), [2, 3, h / 2, w / 2]);
+            got.into_data().assert_approx_eq::<f32>(&expected, Tolerance::rel_abs(1e-5, 1e-6));
+        }
+    }
 
     /// Against Burn's pooling: DenseNet's stem pool on odd and even sides, a valid 2x2 pool, and
     /// an all-negative input (where zero padding would wrongly win).

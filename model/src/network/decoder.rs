@@ -92,13 +92,33 @@ impl Decoder {
     /// Depth, and pressure where the decoder has its channel. `input`: the network's input,
     /// used only by the full-resolution block.
     pub fn forward(&self, s: Skips, input: Tensor<4>, mode: Upsample) -> Heads {
+        self.forward_marked(s, input, mode, &mut |_| {})
+    }
+
+    /// [`forward`](Self::forward), calling `mark` with each stage's name as it ends.
+    pub(crate) fn forward_marked(
+        &self,
+        s: Skips,
+        input: Tensor<4>,
+        mode: Upsample,
+        mark: &mut dyn FnMut(&'static str),
+    ) -> Heads {
         let x = conv2d(&self.conv2, relu(s.norm5));
+        mark("decoder.conv2");
         let x = self.up1.forward(x, s.transition2, mode);
+        mark("decoder.up1");
         let x = self.up2.forward(x, s.transition1, mode);
+        mark("decoder.up2");
         let x = self.up3.forward(x, s.pool0, mode);
+        mark("decoder.up3");
         let x = self.up4.forward(x, s.relu0, mode);
+        mark("decoder.up4");
         let x = match &self.up5 {
-            Some(up5) => up5.forward(x, input, mode),
+            Some(up5) => {
+                let x = up5.forward(x, input, mode);
+                mark("decoder.up5");
+                x
+            }
             None => x,
         };
         let pressure = self.pressure.as_ref().map(|c| conv2d(c, x.clone()));
@@ -108,6 +128,8 @@ impl Decoder {
             Some(c) if x.device().is_autodiff() => Some(conv2d(c, x.clone().detach())),
             _ => None,
         };
-        Heads { depth: conv2d(&self.conv3, x), pressure, pressure_head_only }
+        let depth = conv2d(&self.conv3, x);
+        mark("decoder.heads");
+        Heads { depth, pressure, pressure_head_only }
     }
 }

@@ -78,6 +78,28 @@ impl DenseDepth {
         if plain_flex { crate::backend::in_pool(run) } else { run() }
     }
 
+    /// Milliseconds of each stage of one inference forward (the encoder's stem, blocks and
+    /// transitions, the decoder's blocks and heads), in order, run as
+    /// [`forward_with`](Self::forward_with) runs it: where a small network's time goes.
+    pub fn stage_ms(&self, images: Tensor<4>) -> Vec<(&'static str, f64)> {
+        let mode = upsample_mode_for(&images.device());
+        let run = || {
+            let mut stages = Vec::new();
+            let mut last = std::time::Instant::now();
+            let mut mark = |name: &'static str| {
+                let now = std::time::Instant::now();
+                stages.push((name, (now - last).as_secs_f64() * 1e3));
+                last = now;
+            };
+            let skips = self.encoder.forward_marked(images.clone(), &mut mark);
+            let heads = self.decoder.forward_marked(skips, images.clone(), mode, &mut mark);
+            let _ = heads.depth.into_data();
+            mark("output");
+            stages
+        };
+        if crate::kernels::plain_flex(&images.device()) { crate::backend::in_pool(run) } else { run() }
+    }
+
     /// Whether this network takes an input of shape `[N, C, H, W]`: its channel count, both
     /// sides at least 29 px. Callers with inputs from outside check here and report the error.
     pub fn check_input(&self, [_, c, h, w]: [usize; 4]) -> Result<(), crate::ConfigError> {

@@ -110,7 +110,7 @@ impl Transition {
     /// are linear per pixel, and the bias averages to itself), and the convolution then runs on
     /// a quarter of the pixels.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        conv2d(&self.conv, self.pool.forward(norm_relu(&self.norm, x)))
+        conv2d(&self.conv, kernels::norm_relu_avg_pool2(&self.norm, &self.pool, x))
     }
 }
 
@@ -192,15 +192,35 @@ impl DenseNetEncoder {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Skips {
+        self.forward_marked(x, &mut |_| {})
+    }
+
+    /// [`forward`](Self::forward), calling `mark` with each stage's name as it ends (for
+    /// per-stage timers: flex runs each operation when it is called).
+    pub(crate) fn forward_marked(&self, x: Tensor<4>, mark: &mut dyn FnMut(&'static str)) -> Skips {
         let relu0 = match &self.norm0 {
             Some(norm) => norm_relu(norm, conv2d(&self.conv0, x)),
             None => conv2d_act(&self.conv0, x, Activation::Relu),
         };
+        mark("encoder.conv0");
         let pool0 = max_pool2d(&self.pool0, relu0.clone());
-        let transition1 = self.transition1.forward(self.denseblock1.forward(pool0.clone()));
-        let transition2 = self.transition2.forward(self.denseblock2.forward(transition1.clone()));
-        let t3 = self.transition3.forward(self.denseblock3.forward(transition2.clone()));
-        let norm5 = self.norm5.forward(self.denseblock4.forward(t3));
+        mark("encoder.pool0");
+        let b1 = self.denseblock1.forward(pool0.clone());
+        mark("encoder.denseblock1");
+        let transition1 = self.transition1.forward(b1);
+        mark("encoder.transition1");
+        let b2 = self.denseblock2.forward(transition1.clone());
+        mark("encoder.denseblock2");
+        let transition2 = self.transition2.forward(b2);
+        mark("encoder.transition2");
+        let b3 = self.denseblock3.forward(transition2.clone());
+        mark("encoder.denseblock3");
+        let t3 = self.transition3.forward(b3);
+        mark("encoder.transition3");
+        let b4 = self.denseblock4.forward(t3);
+        mark("encoder.denseblock4");
+        let norm5 = self.norm5.forward(b4);
+        mark("encoder.norm5");
         Skips { relu0, pool0, transition1, transition2, norm5 }
     }
 }
