@@ -31,10 +31,12 @@ pub(crate) fn applies(s: &ConvShape) -> bool {
     s.kernel == 3 && s.stride == 1 && s.padding == 1 && s.height > 0 && s.width > 0
 }
 
-/// The transformed weight when this path computes the convolution `s`; `None` when the gathered
-/// product must (the one place that decides between them).
-pub(crate) fn weight_for(s: &ConvShape, weight: &[f32]) -> Option<Vec<f32>> {
-    applies(s).then(|| transform_weight(weight, s.channels_out, s.channels_in))
+/// The transformed weight when this path computes the convolution `s` (kept between calls for
+/// small weights, `weight_cache`); `None` when the gathered product must (the one place that
+/// decides between them).
+pub(crate) fn weight_for(s: &ConvShape, weight: &[f32]) -> Option<std::sync::Arc<[f32]>> {
+    applies(s)
+        .then(|| super::weight_cache::transformed(weight, || transform_weight(weight, s.channels_out, s.channels_in)))
 }
 
 /// `U = G g Gt` for every (output, input) channel pair, as 16 matrices [channels_out,
