@@ -43,15 +43,23 @@ fn max_pool_planes(x: &[f32], [h, w]: [usize; 2], window: Window) -> Vec<f32> {
     if out.is_empty() {
         return out;
     }
-    out.par_chunks_mut(ho * wo).zip(x.par_chunks(h * w)).for_each(|(dst, plane)| {
+    // Each output column's input columns, once for every row; planes in groups of about 16k
+    // input values, so that a small pool is a few tasks rather than one per channel.
+    let columns: Vec<std::ops::Range<usize>> = (0..wo).map(|ox| window.span(ox, w)).collect();
+    let group = (16384 / (h * w)).max(1);
+    out.par_chunks_mut(group * ho * wo).zip(x.par_chunks(group * h * w)).for_each(|(dst, planes)| {
         let mut rows_max = vec![f32::NEG_INFINITY; w];
-        for (oy, dst_row) in dst.chunks_exact_mut(wo).enumerate() {
-            rows_max.fill(f32::NEG_INFINITY);
-            for y in window.span(oy, h) {
-                rows_max.iter_mut().zip(&plane[y * w..][..w]).for_each(|(m, v)| *m = m.max(*v));
-            }
-            for (ox, d) in dst_row.iter_mut().enumerate() {
-                *d = rows_max[window.span(ox, w)].iter().fold(f32::NEG_INFINITY, |m, v| m.max(*v));
+        for (dst, plane) in dst.chunks_exact_mut(ho * wo).zip(planes.chunks_exact(h * w)) {
+            for (oy, dst_row) in dst.chunks_exact_mut(wo).enumerate() {
+                let mut rows = window.span(oy, h);
+                let first = rows.next().expect("a window overlaps the image");
+                rows_max.copy_from_slice(&plane[first * w..][..w]);
+                for y in rows {
+                    rows_max.iter_mut().zip(&plane[y * w..][..w]).for_each(|(m, v)| *m = m.max(*v));
+                }
+                for (d, span) in dst_row.iter_mut().zip(&columns) {
+                    *d = rows_max[span.clone()].iter().fold(f32::NEG_INFINITY, |m, v| m.max(*v));
+                }
             }
         }
     });
@@ -149,7 +157,8 @@ mod tests {
     }
 
     /// Against Burn's pooling: DenseNet's stem pool on odd and even sides, a valid 2x2 pool, and
-    /// an all-negative input (where zero padding would wrongly win).
+    /// an all-negative input (where zero padding would wrongly win); small planes share a task,
+    /// a large one (130x129) has its own.
     #[test]
     fn equals_burns_max_pool() {
         let device = crate::backend::default_device();
@@ -160,7 +169,7 @@ mod tests {
             MaxPool2dConfig::new([3, 3]).with_strides([1, 1]).with_padding(explicit(1)).init(),
         ];
         for pool in &pools {
-            for [h, w] in [[7, 9], [8, 10], [3, 3]] {
+            for [h, w] in [[7, 9], [8, 10], [3, 3], [130, 129]] {
                 let x = Tensor::<4>::random([2, 3, h, w], Distribution::Normal(0.0, 1.0), &device);
                 for x in [x.clone(), x.abs().neg().sub_scalar(1.0)] {
                     let expected = pool.forward(x.clone()).into_data();
