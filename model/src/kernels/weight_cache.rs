@@ -30,12 +30,13 @@ struct Cache {
     clock: u64,
 }
 
+/// The process's cache.
 static CACHE: Mutex<Cache> = Mutex::new(Cache { entries: Vec::new(), clock: 0 });
 
-/// The cache. A poisoned lock only means another thread panicked while holding it; the
+/// `cache`, locked. A poisoned lock only means another thread panicked while holding it; the
 /// entries are whole either way (each is removed or pushed in one step).
-fn lock() -> std::sync::MutexGuard<'static, Cache> {
-    CACHE.lock().unwrap_or_else(|e| e.into_inner())
+fn lock(cache: &Mutex<Cache>) -> std::sync::MutexGuard<'_, Cache> {
+    cache.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 fn same_bits(a: &[f32], b: &[f32]) -> bool {
@@ -45,6 +46,11 @@ fn same_bits(a: &[f32], b: &[f32]) -> bool {
 /// `transform(weight)`, from the cache when this weight (same address, same values) was
 /// transformed before.
 pub(super) fn transformed(weight: &[f32], transform: impl FnOnce() -> Vec<f32>) -> Arc<[f32]> {
+    transformed_in(&CACHE, weight, transform)
+}
+
+/// [`transformed`] through `cache`.
+fn transformed_in(cache: &Mutex<Cache>, weight: &[f32], transform: impl FnOnce() -> Vec<f32>) -> Arc<[f32]> {
     if weight.len() > MAX_WEIGHT {
         return transform().into();
     }
@@ -52,7 +58,7 @@ pub(super) fn transformed(weight: &[f32], transform: impl FnOnce() -> Vec<f32>) 
     let find =
         |cache: &Cache| cache.entries.iter().position(|e| e.address == address && e.weight.len() == weight.len());
     {
-        let mut cache = lock();
+        let mut cache = lock(cache);
         cache.clock += 1;
         let now = cache.clock;
         if let Some(i) = find(&cache)
@@ -65,7 +71,7 @@ pub(super) fn transformed(weight: &[f32], transform: impl FnOnce() -> Vec<f32>) 
     // Transformed without the lock: the transform scatters over rayon's pool, whose workers may
     // be waiting for the lock in other convolutions of their own.
     let transformed: Arc<[f32]> = transform().into();
-    let mut cache = lock();
+    let mut cache = lock(cache);
     cache.clock += 1;
     let now = cache.clock;
     if let Some(i) = find(&cache) {
@@ -91,25 +97,28 @@ mod tests {
     /// never kept.
     #[test]
     fn a_weight_is_served_from_the_cache_only_while_its_values_are_the_same() {
+        // A cache of its own: tests running beside it fill the process's.
+        let cache = Mutex::new(Cache { entries: Vec::new(), clock: 0 });
+        let transformed = |w: &[f32], t: &dyn Fn() -> Vec<f32>| transformed_in(&cache, w, t);
         let mut weight = vec![1.5f32; 90];
         let calls = std::cell::Cell::new(0);
         let transform = |w: &[f32]| {
             calls.set(calls.get() + 1);
             w.iter().map(|v| v * 2.0).collect::<Vec<f32>>()
         };
-        let first = transformed(&weight, || transform(&weight));
-        let again = transformed(&weight, || transform(&weight));
+        let first = transformed(&weight, &|| transform(&weight));
+        let again = transformed(&weight, &|| transform(&weight));
         assert_eq!((calls.get(), &first[..3], &again[..3]), (1, &[3.0f32; 3][..], &[3.0f32; 3][..]));
         weight[7] = -0.0;
-        let changed = transformed(&weight, || transform(&weight));
+        let changed = transformed(&weight, &|| transform(&weight));
         assert_eq!((calls.get(), changed[7].to_bits()), (2, (-0.0f32).to_bits()));
         // -0.0 and 0.0 compare equal as numbers, not as bits: the cache tells them apart.
         weight[7] = 0.0;
-        let _ = transformed(&weight, || transform(&weight));
+        let _ = transformed(&weight, &|| transform(&weight));
         assert_eq!(calls.get(), 3);
         let large = vec![1.0f32; MAX_WEIGHT + 1];
-        let _ = transformed(&large, || transform(&large));
-        let _ = transformed(&large, || transform(&large));
+        let _ = transformed(&large, &|| transform(&large));
+        let _ = transformed(&large, &|| transform(&large));
         assert_eq!(calls.get(), 5);
     }
 }
