@@ -36,6 +36,12 @@ impl Window {
     }
 }
 
+/// Planes of `plane_len` values a pooling task takes: about 16k input values, so that a small
+/// pool is a few tasks rather than one per channel.
+fn planes_per_task(plane_len: usize) -> usize {
+    (16384 / plane_len.max(1)).max(1)
+}
+
 /// `x` holds planes of `h * w` values; every plane is pooled on its own.
 fn max_pool_planes(x: &[f32], [h, w]: [usize; 2], window: Window) -> Vec<f32> {
     let (ho, wo) = (window.out_len(h), window.out_len(w));
@@ -43,10 +49,9 @@ fn max_pool_planes(x: &[f32], [h, w]: [usize; 2], window: Window) -> Vec<f32> {
     if out.is_empty() {
         return out;
     }
-    // Each output column's input columns, once for every row; planes in groups of about 16k
-    // input values, so that a small pool is a few tasks rather than one per channel.
+    // Each output column's input columns, once for every row.
     let columns: Vec<std::ops::Range<usize>> = (0..wo).map(|ox| window.span(ox, w)).collect();
-    let group = (16384 / (h * w)).max(1);
+    let group = planes_per_task(h * w);
     out.par_chunks_mut(group * ho * wo).zip(x.par_chunks(group * h * w)).for_each(|(dst, planes)| {
         let mut rows_max = vec![f32::NEG_INFINITY; w];
         for (dst, plane) in dst.chunks_exact_mut(ho * wo).zip(planes.chunks_exact(h * w)) {
@@ -91,9 +96,7 @@ fn norm_relu_avg_pool2_planes(x: &[f32], [h, w]: [usize; 2], scale: &[f32], shif
     if out.is_empty() {
         return out;
     }
-    // Planes in groups of about 16k input values: a small transition is a few tasks, not one
-    // per channel.
-    let group = (16384 / (h * w)).max(1);
+    let group = planes_per_task(h * w);
     out.par_chunks_mut(group * ho * wo).zip(x.par_chunks(group * h * w)).enumerate().for_each(|(g, (dst, src))| {
         for (k, (dst, plane)) in dst.chunks_exact_mut(ho * wo).zip(src.chunks_exact(h * w)).enumerate() {
             let c = (g * group + k) % scale.len();

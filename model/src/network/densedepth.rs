@@ -65,17 +65,7 @@ impl DenseDepth {
 
     /// Panics on an input [`check_input`](Self::check_input) refuses.
     pub fn forward_with(&self, images: Tensor<4>, mode: Upsample) -> Heads {
-        if let Err(e) = self.check_input(images.dims()) {
-            panic!("{e}");
-        }
-        let plain_flex = crate::kernels::plain_flex(&images.device());
-        let run = || self.decoder.forward(self.encoder.forward(images.clone()), images, mode);
-        // Inference on the CPU from inside rayon's pool (`backend::in_pool`). A training forward
-        // is not hopped call by call: Burn keeps batch norm's running statistics per thread and
-        // averages them when read, so forwards on whichever worker takes each would make them
-        // follow the schedule (a run and its killed-and-resumed twin then differ; BENCHMARKS.md).
-        // `train`'s fit runs its whole epoch loop on one worker instead.
-        if plain_flex { crate::backend::in_pool(run) } else { run() }
+        self.run_marked(images, mode, &mut |_| {})
     }
 
     /// Milliseconds of each stage of one inference forward (the encoder's stem, blocks and
@@ -83,21 +73,35 @@ impl DenseDepth {
     /// [`forward_with`](Self::forward_with) runs it: where a small network's time goes.
     pub fn stage_ms(&self, images: Tensor<4>) -> Vec<(&'static str, f64)> {
         let mode = upsample_mode_for(&images.device());
+        let mut stages = Vec::new();
+        let mut last = std::time::Instant::now();
+        let heads = self.run_marked(images, mode, &mut |name| {
+            let now = std::time::Instant::now();
+            stages.push((name, (now - last).as_secs_f64() * 1e3));
+            last = now;
+        });
+        let _ = heads.depth.into_data();
+        stages.push(("output", last.elapsed().as_secs_f64() * 1e3));
+        stages
+    }
+
+    /// The checked forward, calling `mark` with each stage's name as it ends. Panics on an
+    /// input [`check_input`](Self::check_input) refuses.
+    fn run_marked(&self, images: Tensor<4>, mode: Upsample, mark: &mut (dyn FnMut(&'static str) + Send)) -> Heads {
+        if let Err(e) = self.check_input(images.dims()) {
+            panic!("{e}");
+        }
+        let plain_flex = crate::kernels::plain_flex(&images.device());
         let run = || {
-            let mut stages = Vec::new();
-            let mut last = std::time::Instant::now();
-            let mut mark = |name: &'static str| {
-                let now = std::time::Instant::now();
-                stages.push((name, (now - last).as_secs_f64() * 1e3));
-                last = now;
-            };
-            let skips = self.encoder.forward_marked(images.clone(), &mut mark);
-            let heads = self.decoder.forward_marked(skips, images.clone(), mode, &mut mark);
-            let _ = heads.depth.into_data();
-            mark("output");
-            stages
+            let skips = self.encoder.forward_marked(images.clone(), mark);
+            self.decoder.forward_marked(skips, images, mode, mark)
         };
-        if crate::kernels::plain_flex(&images.device()) { crate::backend::in_pool(run) } else { run() }
+        // Inference on the CPU from inside rayon's pool (`backend::in_pool`). A training forward
+        // is not hopped call by call: Burn keeps batch norm's running statistics per thread and
+        // averages them when read, so forwards on whichever worker takes each would make them
+        // follow the schedule (a run and its killed-and-resumed twin then differ; BENCHMARKS.md).
+        // `train`'s fit runs its whole epoch loop on one worker instead.
+        if plain_flex { crate::backend::in_pool(run) } else { run() }
     }
 
     /// Whether this network takes an input of shape `[N, C, H, W]`: its channel count, both
