@@ -14,7 +14,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use super::shared::{Activation, ConvShape, Epilogue, Prologue, SharedMut, column_chunks, matmul};
-use super::winograd;
+use super::{direct, winograd};
 
 /// Output positions per task when the input is gathered, and the most gathered rows (channel
 /// and tap pairs) at a time: together about 2 MB per thread, which the product reads from cache.
@@ -81,6 +81,21 @@ fn gather(
     let (k, st, p, wo) = (s.kernel, s.stride, s.padding, s.out_width());
     let (ho, plane) = (s.out_height(), s.height * s.width);
     let n = cols.len();
+    if s.is_pointwise() {
+        // A 1x1 convolution's positions are its input's: one run per channel (a dense layer's
+        // bottleneck with its batch norm + ReLU as the prologue).
+        for (i, ic) in channels.enumerate() {
+            let (src, dst) = (&image[ic * plane + cols.start..][..n], &mut into[i * n..][..n]);
+            match prologue {
+                None => dst.copy_from_slice(src),
+                Some(q) => {
+                    let (scale, shift) = (q.scale[ic], q.shift[ic]);
+                    dst.iter_mut().zip(src).for_each(|(d, v)| *d = (v * scale + shift).max(0.0));
+                }
+            }
+        }
+        return;
+    }
     for (i, ic) in channels.enumerate() {
         let input = &image[ic * plane..][..plane];
         let (scale, shift) = prologue.map_or((1.0, 0.0), |q| (q.scale[ic], q.shift[ic]));
@@ -137,9 +152,10 @@ pub(crate) fn forward_image(
     forward_image_with(image, weight, u.as_deref(), s, prologue, epilogue, out);
 }
 
-/// `forward_image` with the Winograd-transformed weight `u` when there is one, through the
-/// gathered input otherwise (any kernel, stride and padding).
-fn forward_image_with(
+/// `forward_image` with the Winograd-transformed weight `u` when there is one; a strided
+/// convolution directly from its input where the CPU has the kernel (`direct`); through the
+/// gathered input otherwise.
+pub(crate) fn forward_image_with(
     image: &[f32],
     weight: &[f32],
     u: Option<&[f32]>,
@@ -151,6 +167,21 @@ fn forward_image_with(
     if let Some(u) = u {
         return winograd::forward_image(image, u, s, prologue, epilogue, out);
     }
+    if direct::applies(s) {
+        return direct::forward_image(image, weight, s, prologue, epilogue, out);
+    }
+    gathered(image, weight, s, prologue, epilogue, out);
+}
+
+/// The convolution through the gathered input: any kernel, stride and padding.
+fn gathered(
+    image: &[f32],
+    weight: &[f32],
+    s: &ConvShape,
+    prologue: Option<Prologue>,
+    epilogue: &Epilogue,
+    out: &mut [f32],
+) {
     let (c, o, kk) = (s.channels_in, s.channels_out, s.kernel * s.kernel);
     let positions = s.out_height() * s.out_width();
     assert_eq!(image.len(), c * s.height * s.width, "conv input size");
@@ -229,11 +260,12 @@ pub(crate) fn forward_with(
     assert_eq!(x.len(), s.batch * image_len, "conv input size");
     let mut out = vec![0.0f32; s.batch * out_len];
     if image_len > 0 && out_len > 0 {
-        // The Winograd weight transform once for the batch.
+        // The Winograd weight transform once for the batch. The images side by side as well as
+        // within: a small image is one task, which alone would leave the other threads idle.
         let u = winograd::weight_for(s, weight);
-        for (image, dst) in x.chunks_exact(image_len).zip(out.chunks_exact_mut(out_len)) {
+        out.par_chunks_mut(out_len).zip(x.par_chunks(image_len)).for_each(|(dst, image)| {
             forward_image_with(image, weight, u.as_deref(), s, prologue, epilogue, dst);
-        }
+        });
     }
     out
 }
@@ -273,6 +305,129 @@ mod tests {
                 let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
                 for (i, (g, w)) in got.iter().zip(&want).enumerate() {
                     assert!((g - w).abs() <= 2e-6 * scale, "{s:?} prologue {} [{i}]: {g} vs {w}", prologue.is_some());
+                }
+            }
+        }
+    }
+
+    /// A non-finite input value reaches only the Winograd tiles whose 4x4 input window holds
+    /// it: every other output equals the gathered product. The transforms run over all of a
+    /// task's tiles at once with a spare tile at the end of each tile row, which reads the next
+    /// row's first values; its products must never reach the output. Each position in turn,
+    /// on sizes with one task and with several.
+    #[test]
+    fn winograd_keeps_a_non_finite_input_in_its_tiles() {
+        for (height, width) in [(6, 7), (40, 9)] {
+            let s = ConvShape {
+                batch: 1,
+                channels_in: 2,
+                channels_out: 3,
+                height,
+                width,
+                kernel: 3,
+                padding: 1,
+                stride: 1,
+            };
+            let weight = values(3 * 2 * 9, 12);
+            let epilogue = Epilogue::bias(None, Activation::Identity);
+            let positions: Vec<(usize, usize)> = if height * width < 100 {
+                (0..height).flat_map(|y| (0..width).map(move |x| (y, x))).collect()
+            } else {
+                // Rows next to the tasks' edges and the first and last columns.
+                [0, 1, 12, 13, 14, 15, 19, 20, 21, 27, 28, 29, 39]
+                    .iter()
+                    .flat_map(|&y| [0, 1, width - 1].map(|x| (y, x)))
+                    .collect()
+            };
+            for (y, x) in positions {
+                let mut image = values(2 * height * width, 13);
+                image[height * width + y * width + x] = f32::INFINITY;
+                let mut want = vec![0.0; 3 * height * width];
+                forward_image_with(&image, &weight, None, &s, None, &epilogue, &mut want);
+                let mut got = vec![f32::NAN; want.len()];
+                forward_image(&image, &weight, &s, None, &epilogue, &mut got);
+                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                    let (oy, ox) = ((i / width) % height, i % width);
+                    // The 4x4 input window of the tile holding (oy, ox).
+                    let (ty, tx) = (2 * (oy / 2), 2 * (ox / 2));
+                    let in_window = y + 1 >= ty && y <= ty + 2 && x + 1 >= tx && x <= tx + 2;
+                    if !in_window {
+                        assert!((g - w).abs() <= 1e-5, "{height}x{width}, inf at ({y}, {x}): [{i}] {g} vs {w}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// The direct strided kernel against the gathered product: the stem's shape with fewer
+    /// rows, stride 3 over sides it does not divide, output channels that fill no register
+    /// block and rows narrower than one, with and without the prologue and epilogue.
+    #[test]
+    fn direct_equals_the_gathered_product() {
+        let shapes = [
+            ConvShape {
+                batch: 1,
+                channels_in: 6,
+                channels_out: 32,
+                height: 22,
+                width: 70,
+                kernel: 7,
+                padding: 3,
+                stride: 2,
+            },
+            ConvShape {
+                batch: 1,
+                channels_in: 3,
+                channels_out: 5,
+                height: 11,
+                width: 13,
+                kernel: 3,
+                padding: 1,
+                stride: 3,
+            },
+            ConvShape {
+                batch: 1,
+                channels_in: 2,
+                channels_out: 9,
+                height: 9,
+                width: 9,
+                kernel: 5,
+                padding: 0,
+                stride: 2,
+            },
+            ConvShape {
+                batch: 1,
+                channels_in: 4,
+                channels_out: 3,
+                height: 40,
+                width: 5,
+                kernel: 4,
+                padding: 2,
+                stride: 2,
+            },
+        ];
+        for s in shapes {
+            if !direct::applies(&s) {
+                eprintln!("no direct kernel on this CPU; {s:?} not compared");
+                continue;
+            }
+            let image = values(s.channels_in * s.height * s.width, 14);
+            let weight = values(s.channels_out * s.channels_in * s.kernel * s.kernel, 15);
+            let (scale_in, shift_in) = (values(s.channels_in, 16), values(s.channels_in, 17));
+            let (scale_out, shift_out) = (values(s.channels_out, 18), values(s.channels_out, 19));
+            for prologue in [None, Some(Prologue { scale: &scale_in, shift: &shift_in })] {
+                for epilogue in [
+                    Epilogue::bias(None, Activation::Identity),
+                    Epilogue { scale: Some(&scale_out), shift: Some(&shift_out), activation: Activation::Relu },
+                ] {
+                    let len = s.channels_out * s.out_height() * s.out_width();
+                    let mut want = vec![0.0; len];
+                    gathered(&image, &weight, &s, prologue, &epilogue, &mut want);
+                    let mut got = vec![f32::NAN; len];
+                    direct::forward_image(&image, &weight, &s, prologue, &epilogue, &mut got);
+                    for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                        assert!((g - w).abs() <= 1e-5, "{s:?} prologue {} [{i}]: {g} vs {w}", prologue.is_some());
+                    }
                 }
             }
         }

@@ -11,13 +11,15 @@
 use burn::nn::conv::Conv2d;
 use burn::tensor::Tensor;
 use burn_flex::FlexTensor;
+use rayon::prelude::*;
 
 use super::DenseLayerParams;
 use super::conv::{flex_bias, gemm_padding};
-use super::conv_forward::forward_image;
+use super::conv_forward::{forward_image, forward_image_with};
 use super::flex::{flex_f32, flex_tensor, from_flex, slice};
 use super::norm_relu::inference_affine;
 use super::shared::{Activation, ConvShape, Epilogue, Prologue};
+use super::winograd;
 
 /// One layer's parameters as flex tensors and plain values.
 struct Layer {
@@ -98,23 +100,30 @@ pub(crate) fn forward(params: &[DenseLayerParams], x: &Tensor<4>) -> Option<Tens
     }
     let mut stack = vec![0.0f32; n * total * hw];
     let widest = layers.iter().map(|l| l.bottleneck).max().unwrap_or(0);
-    let mut bottleneck = vec![0.0f32; widest * hw];
-    for (image, x) in stack.chunks_exact_mut(total * hw).zip(slice(&input).chunks_exact(c0 * hw)) {
+    let shape = |channels_in, channels_out, kernel| ConvShape {
+        batch: 1,
+        channels_in,
+        channels_out,
+        height: h,
+        width: w,
+        kernel,
+        padding: kernel / 2,
+        stride: 1,
+    };
+    // The 3x3 weights' Winograd transforms looked up once for the batch, not once per image.
+    let transformed: Vec<_> = layers
+        .iter()
+        .map(|l| winograd::weight_for(&shape(l.bottleneck, l.growth, l.kernel), slice(&l.conv2)))
+        .collect();
+    // The images side by side as well as within each convolution: at 8x8 and 4x4 a convolution
+    // is one task, and the images one after another left the other threads idle.
+    stack.par_chunks_mut(total * hw).zip(slice(&input).par_chunks(c0 * hw)).for_each(|(image, x)| {
+        let mut bottleneck = vec![0.0f32; widest * hw];
         image[..c0 * hw].copy_from_slice(x);
         let mut c = c0;
-        for layer in &layers {
+        for (layer, u) in layers.iter().zip(&transformed) {
             let (features, rest) = image.split_at_mut(c * hw);
             let (m, g, k) = (layer.bottleneck, layer.growth, layer.kernel);
-            let shape = |channels_in, channels_out, kernel| ConvShape {
-                batch: 1,
-                channels_in,
-                channels_out,
-                height: h,
-                width: w,
-                kernel,
-                padding: kernel / 2,
-                stride: 1,
-            };
             let prologue = Prologue { scale: slice(&layer.norm1[0]), shift: slice(&layer.norm1[1]) };
             let post1 = Epilogue {
                 scale: layer.post1.0.as_deref(),
@@ -124,10 +133,11 @@ pub(crate) fn forward(params: &[DenseLayerParams], x: &Tensor<4>) -> Option<Tens
             let mid = &mut bottleneck[..m * hw];
             forward_image(features, slice(&layer.conv1), &shape(c, m, 1), Some(prologue), &post1, mid);
             let post2 = Epilogue::bias(layer.bias2.as_ref().map(slice), Activation::Identity);
-            forward_image(mid, slice(&layer.conv2), &shape(m, g, k), None, &post2, &mut rest[..g * hw]);
+            let conv2 = slice(&layer.conv2);
+            forward_image_with(mid, conv2, u.as_deref(), &shape(m, g, k), None, &post2, &mut rest[..g * hw]);
             c += g;
         }
-    }
+    });
     Some(from_flex(flex_tensor(stack, &[n, total, h, w])))
 }
 

@@ -9,7 +9,7 @@
 //! - convolutions as large matrix products, forward (`conv_forward`) and backward
 //!   (`gemm_conv`, through a Burn backend extension in `conv`), 3x3 "same" ones by Winograd's
 //!   F(2x2, 3x3) (`winograd`, the small convolutions' transformed weights kept between calls
-//!   in `weight_cache`);
+//!   in `weight_cache`), strided ones directly from the input dealt into phases (`direct`);
 //! - a dense block's eval-mode forward in one preallocated stack (`dense_block`);
 //! - eval-mode and training-mode batch norm + ReLU in one pass (`norm_relu`, `batch_norm_train`);
 //! - the stem's max pool and a transition's batch norm + ReLU + average pool (`pool`), and the
@@ -35,6 +35,10 @@ mod conv;
 #[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
 mod conv_forward;
 mod dense_block;
+// Output rows written through a shared pointer; kernels compiled for the CPU's vector features.
+#[allow(unsafe_code)]
+#[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
+mod direct;
 mod flex;
 // The shared leaf: the matrix product and the pointer for disjoint writes.
 #[allow(unsafe_code)]

@@ -39,8 +39,13 @@ fn lock(cache: &Mutex<Cache>) -> std::sync::MutexGuard<'_, Cache> {
     cache.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// Compared in blocks without stopping early inside one, so that the compare is vectorised
+/// (value by value it was a tenth of a small convolution's time).
 fn same_bits(a: &[f32], b: &[f32]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+    a.len() == b.len()
+        && a.chunks(256)
+            .zip(b.chunks(256))
+            .all(|(x, y)| x.iter().zip(y).fold(true, |same, (p, q)| same & (p.to_bits() == q.to_bits())))
 }
 
 /// `transform(weight)`, from the cache when this weight (same address, same values) was

@@ -5,8 +5,10 @@
 //! transformed domain (`V = Bt d B`, `U = G g Gt`), the convolution over channels becomes 16
 //! matrix products `M[xi] = U[xi] * V[xi]` of 2.25x fewer flops than the gathered (im2col)
 //! product, and the output is `At M A`. DenseDepth's decoder is mostly such convolutions. The
-//! transforms run over rows of tiles: input rows split into even and odd columns make each of a
-//! tile's four columns a contiguous run, so the transforms vectorise across tiles. The prologue
+//! transforms run over all of a task's tiles in one loop: input rows split into even and odd
+//! columns and grouped by row parity make each of a tile's sixteen values one contiguous run
+//! across tiles (with a spare tile at the end of each tile row), so they vectorise across tiles
+//! however few a row holds. The prologue
 //! (eval-mode batch norm + ReLU of the input) and epilogue (bias / folded batch norm, then the
 //! activation) are the gathered path's, so the two are interchangeable.
 
@@ -17,13 +19,29 @@ use super::shared::{ConvShape, Epilogue, Prologue, SharedMut, column_chunks, mat
 /// Transformed input held per thread (16 x channels x tiles, f32): the channel block is cut so
 /// the block stays about 1 MB.
 const TRANSFORMED_BUDGET: usize = 256 * 1024;
+/// The products' columns (tiles) are padded to a multiple of this, the vector width of the
+/// widest product kernel: at any other count the `gemm` crate packs a copy of the transformed
+/// input into a buffer it allocates on every call.
+const PRODUCT_COLUMNS: usize = 16;
 /// Tiles per task: enough columns for the products to run at speed.
 const MIN_TILES: usize = 32;
 const MAX_TILES: usize = 256;
 
+/// One worker's scratch, kept between calls so that a task allocates nothing.
+#[derive(Default)]
+struct Buffers {
+    /// The transformed input, 16 x channels x tiles.
+    v: Vec<f32>,
+    /// The products, 16 x channels_out x tiles.
+    m: Vec<f32>,
+    /// The task's input rows split by `split_row`.
+    split: Vec<f32>,
+    /// One output channel's rows of `At M`, two columns per tile (`transform_output`).
+    columns: Vec<f32>,
+}
+
 thread_local! {
-    /// Each worker's transformed input and products, kept between calls.
-    static BUFFERS: std::cell::RefCell<(Vec<f32>, Vec<f32>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+    static BUFFERS: std::cell::RefCell<Buffers> = std::cell::RefCell::new(Buffers::default());
 }
 
 /// Whether this path computes the convolution `s`: 3x3, stride 1, padding 1.
@@ -87,15 +105,28 @@ fn split_row(row: Option<&[f32]>, prologue: Option<(f32, f32)>, even: &mut [f32]
     let value = |v: f32| prologue.map_or(v, |(scale, shift)| (v * scale + shift).max(0.0));
     let pairs = row.chunks_exact(2);
     let (n, last) = (row.len() / 2, pairs.remainder().first().copied());
-    for ((e, o), pair) in even[..n].iter_mut().zip(&mut odd[1..=n]).zip(pairs) {
-        *e = value(pair[0]);
-        *o = value(pair[1]);
+    // The prologue decided outside the loop, so that each arm is one vectorised loop.
+    let (even_run, odd_run) = (&mut even[..n], &mut odd[1..=n]);
+    match prologue {
+        None => deal(row, even_run, odd_run, |v| v),
+        Some((scale, shift)) => deal(row, even_run, odd_run, |v| (v * scale + shift).max(0.0)),
     }
     odd[0] = 0.0;
     odd[n + 1..].fill(0.0);
     even[n..].fill(0.0);
     if let Some(v) = last {
         even[n] = value(v);
+    }
+}
+
+/// `even[t] = f(row[2t])`, `odd[t] = f(row[2t + 1])` for the row's whole pairs.
+#[inline(always)]
+fn deal(row: &[f32], even: &mut [f32], odd: &mut [f32], f: impl Fn(f32) -> f32) {
+    let n = even.len();
+    let (row, odd) = (&row[..2 * n], &mut odd[..n]);
+    for t in 0..n {
+        even[t] = f(row[2 * t]);
+        odd[t] = f(row[2 * t + 1]);
     }
 }
 
@@ -107,52 +138,111 @@ fn four_runs(v: &mut [f32], first: usize, stride: usize, n: usize) -> [&mut [f32
     [&mut a[..n], &mut b[..n], &mut c[..n], &mut d[..n]]
 }
 
-/// `V = Bt d B` for the `n` tiles of one tile row of one channel, from the row's four input
-/// rows split by `split_row` (`[even, odd]` each): writes `v[xi * stride + t]` for tile `t`.
-fn transform_input(rows: &[[&[f32]; 2]; 4], n: usize, v: &mut [f32], stride: usize) {
-    // Columns 0..4 of tile t are x = 2t - 1, 2t, 2t + 1, 2t + 2.
-    let d: [[&[f32]; 4]; 4] = std::array::from_fn(|r| {
-        let [even, odd] = rows[r];
-        [&odd[..n], &even[..n], &odd[1..=n], &even[1..=n]]
-    });
-    // Row r of Bt d is input row p plus or minus input row q.
-    for (r, (p, q, sign)) in [(0, 2, -1.0f32), (1, 2, 1.0), (2, 1, -1.0), (1, 3, -1.0)].into_iter().enumerate() {
-        let [v0, v1, v2, v3] = four_runs(v, 4 * r * stride, stride, n);
-        let ([a0, a1, a2, a3], [b0, b1, b2, b3]) = (d[p], d[q]);
-        for t in 0..n {
-            let (c0, c1, c2, c3) =
-                (a0[t] + sign * b0[t], a1[t] + sign * b1[t], a2[t] + sign * b2[t], a3[t] + sign * b3[t]);
-            v0[t] = c0 - c2;
-            v1[t] = c1 + c2;
-            v2[t] = c2 - c1;
-            v3[t] = c1 - c3;
+/// `V = Bt d B` for `n` tiles of one channel, from its input rows split by `split_row` and
+/// grouped by parity (`rows[p] = [even, odd]`: the split rows `p, p + 2, ...` one after another,
+/// `row_len` values each). Tile `f` starts at split row `2 * (f / row_len)`, column `f % row_len`
+/// (the last column of every row is a spare tile, which the caller ignores), so every tile of the
+/// task is one run of one loop instead of a call per tile row: at 8x8 a tile row holds 4 tiles,
+/// and the per-call setup was most of the time. Writes `v[xi * stride + f]`.
+fn transform_input<'a>(rows: [[&'a [f32]; 2]; 2], row_len: usize, n: usize, v: &mut [f32], stride: usize) {
+    // Columns 0..4 of a tile are x = 2t - 1, 2t, 2t + 1, 2t + 2; input row j is split row
+    // 2 * (tile row) + j, row j / 2 of parity j % 2.
+    // (Arrays built by hand: `array::from_fn` and `map` were not inlined, a fifth of a small
+    // convolution's time.)
+    let [[even0, odd0], [even1, odd1]] = rows;
+    let columns = |even: &'a [f32], odd: &'a [f32], at: usize| {
+        [&odd[at..][..n], &even[at..][..n], &odd[at + 1..][..n], &even[at + 1..][..n]]
+    };
+    let d = [
+        columns(even0, odd0, 0),
+        columns(even1, odd1, 0),
+        columns(even0, odd0, row_len),
+        columns(even1, odd1, row_len),
+    ];
+    let (r0, r1, r2, r3) = ((d[0], d[2]), (d[1], d[2]), (d[2], d[1]), (d[1], d[3]));
+    let (v0, rest) = v.split_at_mut(4 * stride);
+    let (v1, rest) = rest.split_at_mut(4 * stride);
+    let (v2, v3) = rest.split_at_mut(4 * stride);
+    input_row(r0, |a, b| a - b, four_runs(v0, 0, stride, n));
+    input_row(r1, |a, b| a + b, four_runs(v1, 0, stride, n));
+    input_row(r2, |a, b| a - b, four_runs(v2, 0, stride, n));
+    input_row(r3, |a, b| a - b, four_runs(v3, 0, stride, n));
+}
+
+/// One row of `V = Bt d B`: `(Bt d)` row `combine(p, q)` of two input rows' four column runs,
+/// times `B`. The runs are cut to one length here, where the loop can see it, so that it has no
+/// bounds checks and runs over tiles in vector registers (`transform_input`, `transform_output`
+/// and `split_row` took 40 % of a small 3x3 convolution as scalar loops, BENCHMARKS.md).
+#[inline(always)]
+fn input_row(
+    ([p0, p1, p2, p3], [q0, q1, q2, q3]): ([&[f32]; 4], [&[f32]; 4]),
+    combine: impl Fn(f32, f32) -> f32,
+    [v0, v1, v2, v3]: [&mut [f32]; 4],
+) {
+    let n = v0.len();
+    let (p0, p1, p2, p3) = (&p0[..n], &p1[..n], &p2[..n], &p3[..n]);
+    let (q0, q1, q2, q3) = (&q0[..n], &q1[..n], &q2[..n], &q3[..n]);
+    let (v1, v2, v3) = (&mut v1[..n], &mut v2[..n], &mut v3[..n]);
+    for t in 0..n {
+        let (c0, c1, c2, c3) =
+            (combine(p0[t], q0[t]), combine(p1[t], q1[t]), combine(p2[t], q2[t]), combine(p3[t], q3[t]));
+        v0[t] = c0 - c2;
+        v1[t] = c1 + c2;
+        v2[t] = c2 - c1;
+        v3[t] = c1 - c3;
+    }
+}
+
+/// `Y = At M A` for the tiles of one output channel, `m[xi * stride + f]` with tile `f` as in
+/// `transform_input`, into the output rows `band` ([rows, width], from an even row on): each
+/// tile row's two output rows (one at the bottom of an odd height), and a last tile of an odd
+/// width writes its left column only. `columns` holds each output row's two columns per tile,
+/// reused between calls.
+fn transform_output(m: &[f32], stride: usize, row_len: usize, band: &mut [f32], width: usize, columns: &mut Vec<f32>) {
+    let tile_rows = band.len().div_ceil(2 * width);
+    let n = tile_rows * row_len;
+    let run = |xi: usize| &m[xi * stride..][..n];
+    columns.resize(4 * n, 0.0);
+    let (top, bottom) = columns.split_at_mut(2 * n);
+    for (a, halves) in [top, bottom].into_iter().enumerate() {
+        // Row a of At M: rows 0 + 1 + 2, or 1 - 2 - 3; then its two columns, for every tile.
+        let (ra, rb, rc) = if a == 0 { (0, 1, 2) } else { (1, 2, 3) };
+        let sign = if a == 0 { 1.0f32 } else { -1.0 };
+        let col = |c: usize| (run(4 * ra + c), run(4 * rb + c), run(4 * rc + c));
+        let (left, right) = halves.split_at_mut(n);
+        output_columns([col(0), col(1), col(2), col(3)], sign, left, right);
+    }
+    let pairs = width / 2;
+    for (y, row) in band.chunks_exact_mut(width).enumerate() {
+        let (ri, half) = (y / 2, if y % 2 == 0 { &columns[..2 * n] } else { &columns[2 * n..] });
+        let (left, right) = (&half[ri * row_len..][..row_len], &half[n + ri * row_len..][..row_len]);
+        let (whole, last) = row.split_at_mut(2 * pairs);
+        for ((out, l), r) in whole.chunks_exact_mut(2).zip(&left[..pairs]).zip(&right[..pairs]) {
+            out[0] = *l;
+            out[1] = *r;
+        }
+        if let [out] = last {
+            *out = left[pairs];
         }
     }
 }
 
-/// `Y = At M A` for the `n` tiles of one tile row of one output channel, `m[xi * stride + t]`,
-/// into the output rows under it (`rows[1]` is `None` past the bottom; a last tile of an odd
-/// width writes its left column only).
-fn transform_output(m: &[f32], stride: usize, n: usize, rows: [Option<&mut [f32]>; 2]) {
-    let run = |xi: usize| &m[xi * stride..][..n];
-    let s: [[&[f32]; 4]; 4] = std::array::from_fn(|r| std::array::from_fn(|col| run(4 * r + col)));
-    for (a, row) in rows.into_iter().enumerate() {
-        let Some(row) = row else { continue };
-        // Row a of At M: rows 0 + 1 + 2, or 1 - 2 - 3.
-        let combine = |col: usize, t: usize| {
-            if a == 0 { s[0][col][t] + s[1][col][t] + s[2][col][t] } else { s[1][col][t] - s[2][col][t] - s[3][col][t] }
-        };
-        let pairs = row.len() / 2;
-        let (whole, last) = row.split_at_mut(2 * pairs);
-        for (t, out) in whole.chunks_exact_mut(2).enumerate() {
-            let (e0, e1, e2, e3) = (combine(0, t), combine(1, t), combine(2, t), combine(3, t));
-            out[0] = e0 + e1 + e2;
-            out[1] = e1 - e2 - e3;
-        }
-        if let [out] = last {
-            let t = pairs;
-            *out = combine(0, t) + combine(1, t) + combine(2, t);
-        }
+/// The two output columns of every tile of one output row: with `e[c] = s0 + sign s1 + sign s2`
+/// for tile column `c` (the rows of `At M`), `left = e0 + e1 + e2` and `right = e1 - e2 - e3`,
+/// each added left to right as the tile-row version did, so the outputs are the same bits.
+#[inline(always)]
+fn output_columns<'a>(e: [(&'a [f32], &'a [f32], &'a [f32]); 4], sign: f32, left: &mut [f32], right: &mut [f32]) {
+    let n = left.len();
+    let right = &mut right[..n];
+    let cut = |(a, b, c): (&'a [f32], &'a [f32], &'a [f32])| (&a[..n], &b[..n], &c[..n]);
+    let ((a0, b0, c0), (a1, b1, c1), (a2, b2, c2), (a3, b3, c3)) = (cut(e[0]), cut(e[1]), cut(e[2]), cut(e[3]));
+    for t in 0..n {
+        let e0 = (a0[t] + sign * b0[t]) + sign * c0[t];
+        let e1 = (a1[t] + sign * b1[t]) + sign * c1[t];
+        let e2 = (a2[t] + sign * b2[t]) + sign * c2[t];
+        let e3 = (a3[t] + sign * b3[t]) + sign * c3[t];
+        left[t] = e0 + e1 + e2;
+        right[t] = e1 - e2 - e3;
     }
 }
 
@@ -176,36 +266,41 @@ pub(crate) fn forward_image(
     let min_rows = MIN_TILES.div_ceil(tw).max(1);
     let dst = SharedMut(out.as_mut_ptr());
     column_chunks(tile_rows, min_rows, (MAX_TILES / tw).max(min_rows)).into_par_iter().for_each(|rows| {
-        let nt = rows.len() * tw;
+        // Each tile row has a spare tile at its end (see `transform_input`).
+        let row_len = tw + 1;
+        let nt = (rows.len() * row_len).next_multiple_of(PRODUCT_COLUMNS);
         let block = (TRANSFORMED_BUDGET / (16 * nt)).clamp(1, c.max(1));
-        BUFFERS.with_borrow_mut(|(v, m)| {
+        BUFFERS.with_borrow_mut(|Buffers { v, m, split, columns }| {
             v.resize(v.len().max(16 * block * nt), 0.0);
             m.resize(m.len().max(16 * o * nt), 0.0);
             if c == 0 {
                 // No products to write them: a convolution of nothing is zero.
                 m[..16 * o * nt].fill(0.0);
             }
-            // The task's input rows 2 * rows.start - 1 ..= 2 * rows.end, each split once.
-            let mut split = vec![0.0f32; (2 * rows.len() + 2) * 2 * (tw + 1)];
+            // The task's input rows 2 * rows.start - 1 ..= 2 * rows.end, each split once, by
+            // parity: [even rows' even, even rows' odd, odd rows' even, odd rows' odd] columns,
+            // then zeros, which the spare tiles up to `nt` read (their products are computed
+            // and never read; zeros keep them finite whatever the buffer held before).
+            let (rows_len, len) = ((rows.len() + 1) * row_len, row_len + 1 + nt);
+            split.resize(split.len().max(4 * len), 0.0);
+            split[..4 * len].chunks_exact_mut(len).for_each(|parity| parity[rows_len..].fill(0.0));
             for c0 in (0..c).step_by(block) {
                 let channels = c0..(c0 + block).min(c);
                 let stride = channels.len() * nt;
                 for (cl, ic) in channels.clone().enumerate() {
                     let plane = &image[ic * h * w..][..h * w];
                     let affine = prologue.map(|q| (q.scale[ic], q.shift[ic]));
-                    for (r, halves) in split.chunks_exact_mut(2 * (tw + 1)).enumerate() {
+                    for r in 0..2 * rows.len() + 2 {
                         let y = (2 * rows.start + r).checked_sub(1).filter(|y| *y < h);
-                        let (even, odd) = halves.split_at_mut(tw + 1);
-                        split_row(y.map(|y| &plane[y * w..][..w]), affine, even, odd);
+                        let at = (r % 2) * 2 * len + (r / 2) * row_len;
+                        let (even, odd) = split[at..].split_at_mut(len);
+                        split_row(y.map(|y| &plane[y * w..][..w]), affine, &mut even[..row_len], &mut odd[..row_len]);
                     }
-                    let halves = |r: usize| {
-                        let row = &split[2 * r * (tw + 1)..][..2 * (tw + 1)];
-                        [&row[..tw + 1], &row[tw + 1..]]
+                    let parity = |p: usize| {
+                        let (even, odd) = split[2 * p * len..][..2 * len].split_at(len);
+                        [even, odd]
                     };
-                    for ri in 0..rows.len() {
-                        let input = [halves(2 * ri), halves(2 * ri + 1), halves(2 * ri + 2), halves(2 * ri + 3)];
-                        transform_input(&input, tw, &mut v[cl * nt + ri * tw..], stride);
-                    }
+                    transform_input([parity(0), parity(1)], row_len, nt, &mut v[cl * nt..], stride);
                 }
                 for xi in 0..16 {
                     // SAFETY: `m` holds 16 [o, nt] products, `v` 16 [channels, nt] blocks and
@@ -228,11 +323,7 @@ pub(crate) fn forward_image(
             for oc in 0..o {
                 // SAFETY: rows `y0..y1` of output channel `oc` belong to this task alone.
                 let band = unsafe { std::slice::from_raw_parts_mut(dst.at(oc * h * w + y0 * w), (y1 - y0) * w) };
-                for (ri, pair) in band.chunks_mut(2 * w).enumerate() {
-                    let (top, bottom) = pair.split_at_mut(w.min(pair.len()));
-                    let bottom = (!bottom.is_empty()).then_some(bottom);
-                    transform_output(&m[oc * nt + ri * tw..], o * nt, tw, [Some(top), bottom]);
-                }
+                transform_output(&m[oc * nt..], o * nt, row_len, band, w, columns);
                 if !epilogue.is_identity() {
                     epilogue.apply(oc, band);
                 }
