@@ -69,8 +69,15 @@ struct Problem<'a> {
 
 /// Output channels x positions held in registers: 8 x 32 (16 vectors of 16) with AVX-512,
 /// 4 x 16 (8 vectors of 8) with AVX2, leaving registers for the loaded run and the weight.
+#[cfg(target_arch = "x86_64")]
+const AVX512_BLOCK: (usize, usize) = (8, 32);
+#[cfg(target_arch = "x86_64")]
+const AVX2_BLOCK: (usize, usize) = (4, 16);
+
+/// The kernel this CPU runs. Only `detect` makes one, after asking the CPU: the `unsafe` calls
+/// into the `#[target_feature]` functions in `rows` rely on that alone.
 #[derive(Clone, Copy, PartialEq, Debug)]
-enum Kernel {
+pub(crate) enum Kernel {
     #[cfg(target_arch = "x86_64")]
     Avx512,
     #[cfg(target_arch = "x86_64")]
@@ -78,26 +85,34 @@ enum Kernel {
 }
 
 impl Kernel {
-    /// This CPU's kernel, if it has one with fused multiply-add.
+    /// This CPU's kernel, if it has one with fused multiply-add: the widest.
     fn detect() -> Option<Kernel> {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma") {
-                return Some(Kernel::Avx512);
-            }
-            if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
-                return Some(Kernel::Avx2);
-            }
-        }
-        None
+        Kernel::each_detected().into_iter().next()
     }
 
+    /// Every kernel this CPU can run, widest first (the tests run each).
+    pub(crate) fn each_detected() -> Vec<Kernel> {
+        let mut kernels = Vec::new();
+        #[cfg(target_arch = "x86_64")]
+        {
+            let fma = is_x86_feature_detected!("fma");
+            if fma && is_x86_feature_detected!("avx512f") {
+                kernels.push(Kernel::Avx512);
+            }
+            if fma && is_x86_feature_detected!("avx2") {
+                kernels.push(Kernel::Avx2);
+            }
+        }
+        kernels
+    }
+
+    /// Output channels and positions of one register block.
     fn block(self) -> (usize, usize) {
         match self {
             #[cfg(target_arch = "x86_64")]
-            Kernel::Avx512 => (8, 32),
+            Kernel::Avx512 => AVX512_BLOCK,
             #[cfg(target_arch = "x86_64")]
-            Kernel::Avx2 => (4, 16),
+            Kernel::Avx2 => AVX2_BLOCK,
         }
     }
 
@@ -113,18 +128,20 @@ impl Kernel {
     }
 }
 
-/// The accumulators of one block in registers, through `std::arch` (written as plain loops over
-/// arrays, the block was kept on the stack and added one value at a time: 30x slower). `V` is
-/// the vector type, `N` vectors per channel.
+/// Output rows through one kernel: each register block (`$block`: output channels, positions in
+/// two vectors of `$lanes`) summed over the taps in registers, through `std::arch` (written as
+/// plain loops over arrays, the block stayed on the stack and was added one value at a time: 30x
+/// slower).
 macro_rules! rows_kernel {
-    ($name:ident, $features:literal, $vector:ty, $lanes:literal, $channels:literal, $zero:ident, $load:ident, $splat:ident, $fma:ident, $store:ident) => {
+    ($name:ident, $features:literal, $block:expr, $vector:ty, $lanes:literal, $zero:ident, $load:ident, $splat:ident, $fma:ident, $store:ident) => {
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = $features)]
         fn $name(problem: &Problem, rows: Range<usize>, out: SharedMut) {
             use std::arch::x86_64::*;
-            const OB: usize = $channels;
+            const OB: usize = $block.0;
             const N: usize = 2;
-            const L: usize = N * $lanes;
+            const L: usize = $block.1;
+            const _: () = assert!(L == N * $lanes, "a block is two vectors wide");
             let (o, wo, width) = (problem.channels_out, problem.out_width, problem.planes.plane_width);
             let blocks = o.div_ceil(OB) * OB;
             let (values, weight) = (&problem.planes.values, &problem.weight);
@@ -177,9 +194,9 @@ macro_rules! rows_kernel {
 rows_kernel!(
     rows_avx512,
     "avx512f,fma",
+    AVX512_BLOCK,
     __m512,
     16,
-    8,
     _mm512_setzero_ps,
     _mm512_loadu_ps,
     _mm512_set1_ps,
@@ -189,9 +206,9 @@ rows_kernel!(
 rows_kernel!(
     rows_avx2,
     "avx2,fma",
+    AVX2_BLOCK,
     __m256,
     8,
-    4,
     _mm256_setzero_ps,
     _mm256_loadu_ps,
     _mm256_set1_ps,
@@ -199,14 +216,17 @@ rows_kernel!(
     _mm256_storeu_ps
 );
 
-/// Whether this path computes the convolution `s` on this CPU: strided, not 1x1.
-pub(crate) fn applies(s: &ConvShape) -> bool {
-    s.stride >= 2 && s.kernel > 1 && s.channels_in > 0 && Kernel::detect().is_some()
+/// The kernel that computes the convolution `s` on this CPU, if this path does: strided, not
+/// 1x1, on a CPU with one of the kernels.
+pub(crate) fn kernel_for(s: &ConvShape) -> Option<Kernel> {
+    (s.stride >= 2 && s.kernel > 1 && s.channels_in > 0).then(Kernel::detect).flatten()
 }
 
 /// The convolution of one image ([channels_in, height, width]) into `out` ([channels_out,
-/// out_height * out_width]), with the prologue and epilogue. Requires `applies(s)`.
+/// out_height * out_width]) through `kernel`, with the prologue and epilogue.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn forward_image(
+    kernel: Kernel,
     image: &[f32],
     weight: &[f32],
     s: &ConvShape,
@@ -214,7 +234,7 @@ pub(crate) fn forward_image(
     epilogue: &Epilogue,
     out: &mut [f32],
 ) {
-    let kernel = Kernel::detect().filter(|_| applies(s)).expect("a strided convolution on a CPU with FMA");
+    assert!(s.stride >= 2 && s.kernel > 1 && s.channels_in > 0, "a strided convolution: {s:?}");
     let (c, o, k, st) = (s.channels_in, s.channels_out, s.kernel, s.stride);
     let (ho, wo) = (s.out_height(), s.out_width());
     assert_eq!(image.len(), c * s.height * s.width, "conv input size");

@@ -37,7 +37,6 @@ mod conv_forward;
 mod dense_block;
 // Output rows written through a shared pointer; kernels compiled for the CPU's vector features.
 #[allow(unsafe_code)]
-#[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
 mod direct;
 mod flex;
 // The shared leaf: the matrix product and the pointer for disjoint writes.
