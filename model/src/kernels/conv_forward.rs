@@ -35,11 +35,11 @@ fn valid_span(output: usize, input: usize, tap: usize, padding: usize, stride: u
     lo.min(hi)..hi
 }
 
-/// A strided convolution's input with each row's columns dealt into `stride` phases (the
-/// columns `q, q + stride, q + 2 stride, ...` side by side for each `q`, `phase_len` each), so
-/// that a tap's values along a row are contiguous: the gather then copies runs instead of
-/// reading every `stride`-th value (the stem's 7x7 stride-2 convolution: 0.36 -> 0.32 ms on
-/// the quickstart's network, BENCHMARKS.md).
+/// Where the CPU has no direct kernel (`direct`): a strided convolution's input with each row's
+/// columns dealt into `stride` phases (the columns `q, q + stride, q + 2 stride, ...` side by
+/// side for each `q`, `phase_len` each), so that a tap's values along a row are contiguous: the
+/// gather then copies runs instead of reading every `stride`-th value (the stem's 7x7 stride-2
+/// convolution: 0.36 -> 0.32 ms on the quickstart's network, BENCHMARKS.md).
 struct Phases {
     values: Vec<f32>,
     phase_len: usize,

@@ -130,9 +130,9 @@ fn deal(row: &[f32], even: &mut [f32], odd: &mut [f32], f: impl Fn(f32) -> f32) 
     }
 }
 
-/// Four disjoint runs of `n` values, `stride` apart, from `first` on.
-fn four_runs(v: &mut [f32], first: usize, stride: usize, n: usize) -> [&mut [f32]; 4] {
-    let (a, rest) = v[first..].split_at_mut(stride);
+/// Four disjoint runs of `n` values, `stride` apart, from the start of `v`.
+fn four_runs(v: &mut [f32], stride: usize, n: usize) -> [&mut [f32]; 4] {
+    let (a, rest) = v.split_at_mut(stride);
     let (b, rest) = rest.split_at_mut(stride);
     let (c, d) = rest.split_at_mut(stride);
     [&mut a[..n], &mut b[..n], &mut c[..n], &mut d[..n]]
@@ -163,10 +163,10 @@ fn transform_input<'a>(rows: [[&'a [f32]; 2]; 2], row_len: usize, n: usize, v: &
     let (v0, rest) = v.split_at_mut(4 * stride);
     let (v1, rest) = rest.split_at_mut(4 * stride);
     let (v2, v3) = rest.split_at_mut(4 * stride);
-    input_row(r0, |a, b| a - b, four_runs(v0, 0, stride, n));
-    input_row(r1, |a, b| a + b, four_runs(v1, 0, stride, n));
-    input_row(r2, |a, b| a - b, four_runs(v2, 0, stride, n));
-    input_row(r3, |a, b| a - b, four_runs(v3, 0, stride, n));
+    input_row(r0, |a, b| a - b, four_runs(v0, stride, n));
+    input_row(r1, |a, b| a + b, four_runs(v1, stride, n));
+    input_row(r2, |a, b| a - b, four_runs(v2, stride, n));
+    input_row(r3, |a, b| a - b, four_runs(v3, stride, n));
 }
 
 /// One row of `V = Bt d B`: `(Bt d)` row `combine(p, q)` of two input rows' four column runs,
