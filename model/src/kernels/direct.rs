@@ -85,9 +85,11 @@ pub(crate) enum Kernel {
 }
 
 impl Kernel {
-    /// This CPU's kernel, if it has one with fused multiply-add: the widest.
+    /// This CPU's kernel, if it has one with fused multiply-add: the widest. Asked once per
+    /// process, not on every convolution.
     fn detect() -> Option<Kernel> {
-        Kernel::each_detected().into_iter().next()
+        static DETECTED: std::sync::OnceLock<Option<Kernel>> = std::sync::OnceLock::new();
+        *DETECTED.get_or_init(|| Kernel::each_detected().into_iter().next())
     }
 
     /// Every kernel this CPU can run, widest first (the tests run each).
@@ -216,10 +218,15 @@ rows_kernel!(
     _mm256_storeu_ps
 );
 
-/// The kernel that computes the convolution `s` on this CPU, if this path does: strided, not
-/// 1x1, on a CPU with one of the kernels.
+/// The convolutions this path computes: strided, not 1x1, with some input.
+fn takes(s: &ConvShape) -> bool {
+    s.stride >= 2 && s.kernel > 1 && s.channels_in > 0
+}
+
+/// The kernel that computes the convolution `s` on this CPU, if this path does: one it
+/// [`takes`], on a CPU with one of the kernels.
 pub(crate) fn kernel_for(s: &ConvShape) -> Option<Kernel> {
-    (s.stride >= 2 && s.kernel > 1 && s.channels_in > 0).then(Kernel::detect).flatten()
+    takes(s).then(Kernel::detect).flatten()
 }
 
 /// The convolution of one image ([channels_in, height, width]) into `out` ([channels_out,
@@ -234,7 +241,7 @@ pub(crate) fn forward_image(
     epilogue: &Epilogue,
     out: &mut [f32],
 ) {
-    assert!(s.stride >= 2 && s.kernel > 1 && s.channels_in > 0, "a strided convolution: {s:?}");
+    assert!(takes(s), "a strided convolution: {s:?}");
     let (c, o, k, st) = (s.channels_in, s.channels_out, s.kernel, s.stride);
     let (ho, wo) = (s.out_height(), s.out_width());
     assert_eq!(image.len(), c * s.height * s.width, "conv input size");
