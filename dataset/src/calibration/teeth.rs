@@ -58,13 +58,7 @@ pub(super) fn locate_teeth(
     let reg = register(&mut edges, r_rim, rim_sd_px)?;
     let offsets = reg.offsets_px;
     let pitch_px = r_rim / 90.0 * pitch_deg;
-    if offsets.iter().any(|b| b.abs() > 0.3 * pitch_px) {
-        return fail(format!(
-            "the tooth drops sit {:.1} and {:.1} px off any fisheye's radial map left and right: the strip's profile is \
-             not a saw-tooth's",
-            offsets[0], offsets[1]
-        ));
-    }
+    offsets_plausible(offsets, pitch_px)?;
     let reach = |s: i8| edges.iter().filter(|e| e.side == s).map(|e| e.tooth).max().unwrap_or(0);
     if edges.len() < 6 || reach(-1).max(reach(1)) < indicator.teeth / 2 {
         return fail(format!(
@@ -75,24 +69,70 @@ pub(super) fn locate_teeth(
             indicator.teeth
         ));
     }
-    // Left and right drops of one tooth sit at the same radius (the map is radial).
-    let mut pairs = 0;
-    let mut disagree = 0;
-    for l in edges.iter().filter(|e| e.side < 0) {
-        if let Some(r) = edges.iter().find(|e| e.side > 0 && e.tooth == l.tooth) {
-            pairs += 1;
-            if (l.radius_px - r.radius_px).abs() > 2.0 {
-                disagree += 1;
-            }
-        }
-    }
-    if pairs > 0 && disagree * 4 > pairs {
-        return fail(format!(
-            "{disagree} of {pairs} teeth sit at different radii left and right of the centre: the indicator does not \
-             pass through the optical centre"
-        ));
-    }
+    left_right_agree(&edges, pitch_px)?;
     Ok((edges, found.sigma_px, found.tail_px, reg.offsets_sd_px))
+}
+
+/// A side's pulses may sit off its drops by what the lighting does, not by 0.3 of the pitch or
+/// more: beyond that the teeth may be numbered one off. Refused with what the offsets say: the
+/// same on both sides (measured on the independent image model's refusals) is the pulses read
+/// at another band of the teeth's shading; opposite, the strip's apex is off the optical centre
+/// found from the rim.
+fn offsets_plausible([left, right]: [f64; 2], pitch_px: f64) -> Result<(), CalibrationError> {
+    if left.abs() <= 0.3 * pitch_px && right.abs() <= 0.3 * pitch_px {
+        return Ok(());
+    }
+    let opening = format!(
+        "the tooth drops sit {left:+.1} px (left) and {right:+.1} px (right) off any fisheye's radial map through the \
+         centre, more than 0.3 of the {pitch_px:.1} px pitch that a lighting offset reaches"
+    );
+    let why = if left.signum() == right.signum() {
+        "alike on both sides: the pulses were read at another band of the teeth's shading, or the teeth numbered one \
+         off (is the indicator's pitch right?); light the strip more evenly"
+            .to_string()
+    } else {
+        format!(
+            "opposite on the two sides: the optical centre found from the rim is off by about {:.1} px along the strip \
+             (a dim or unevenly lit stretch of the rim pulls it), or the indicator's apex is not on the centre",
+            0.5 * (right - left).abs()
+        )
+    };
+    fail(format!("{opening}; {why}"))
+}
+
+/// Left and right drops of one tooth sit at the same radius (the map is radial) once each side's
+/// offset is taken off; where more than a quarter of the pairs differ by over 2 px, the frame is
+/// refused. A centre or apex off along the strip moves all of a side's drops alike, which the
+/// offsets take; what is left is drops placed inconsistently, measured on the independent image
+/// model's refusals as some pairs half a tooth from the others (one side's drop read at another
+/// band of the teeth's shading).
+fn left_right_agree(edges: &[MatchedEdge], pitch_px: f64) -> Result<(), CalibrationError> {
+    let mut diffs: Vec<f64> = edges
+        .iter()
+        .filter(|l| l.side < 0)
+        .filter_map(|l| edges.iter().find(|r| r.side > 0 && r.tooth == l.tooth).map(|r| r.radius_px - l.radius_px))
+        .collect();
+    let pairs = diffs.len();
+    let disagree = diffs.iter().filter(|d| d.abs() > 2.0).count();
+    if pairs == 0 || disagree * 4 <= pairs {
+        return Ok(());
+    }
+    diffs.sort_by(f64::total_cmp);
+    let (low, high) = (diffs[0], diffs[pairs - 1]);
+    let why = if high - low >= 0.3 * pitch_px {
+        format!(
+            "spread over {:.1} px, {:.2} of the {pitch_px:.1} px pitch: on one side some drops were read at another band \
+             of the teeth's shading; light the strip more evenly",
+            high - low,
+            (high - low) / pitch_px
+        )
+    } else {
+        "the drops were not placed consistently on the two sides".to_string()
+    };
+    fail(format!(
+        "{disagree} of {pairs} teeth sit at different radii left and right of the centre (by {low:+.1} to {high:+.1} px, \
+         right minus left); {why}"
+    ))
 }
 
 /// What the registration found: each side's offset of the pulses from the drops (px) and its
@@ -170,4 +210,45 @@ pub(super) fn register(
         e.radius_px -= reg.offsets_px[usize::from(e.side > 0)];
     }
     Ok(reg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Drops of teeth 1..=12 on both sides, the right ones moved by `shift(tooth)` px.
+    fn pairs(shift: impl Fn(u32) -> f64) -> Vec<MatchedEdge> {
+        let edge = |side: i8, tooth: u32, radius_px: f64| MatchedEdge {
+            side,
+            tooth,
+            radius_px,
+            theta_rad: (5.0 * tooth as f64).to_radians(),
+            residual_px: 0.0,
+        };
+        (1..=12).flat_map(|k| [edge(-1, k, 15.0 * k as f64), edge(1, k, 15.0 * k as f64 + shift(k))]).collect()
+    }
+
+    #[test]
+    fn left_and_right_drops_that_disagree_are_refused_with_what_the_difference_looks_like() {
+        // Within 2 px, or few teeth off: kept.
+        assert!(left_right_agree(&pairs(|k| 0.3 * (k % 3) as f64 - 0.3), 15.0).is_ok());
+        assert!(left_right_agree(&pairs(|k| if k <= 3 { 7.5 } else { 0.0 }), 15.0).is_ok());
+        // Half of them half a tooth from the others: read at another band.
+        let e = left_right_agree(&pairs(|k| if k % 2 == 0 { -3.5 } else { 3.5 }), 15.0).unwrap_err().to_string();
+        assert!(
+            e.contains("12 of 12 teeth") && e.contains("by -3.5 to +3.5 px") && e.contains("0.47 of the 15.0"),
+            "{e}"
+        );
+        let e = left_right_agree(&pairs(|k| if k % 2 == 0 { -2.5 } else { 1.0 }), 15.0).unwrap_err().to_string();
+        assert!(e.contains("6 of 12 teeth") && e.contains("not placed consistently"), "{e}");
+    }
+
+    #[test]
+    fn offsets_beyond_what_lighting_does_are_refused_with_what_their_signs_say() {
+        assert!(offsets_plausible([-4.4, 4.4], 15.0).is_ok());
+        let e = offsets_plausible([-5.9, -6.2], 15.0).unwrap_err().to_string();
+        assert!(e.contains("-5.9 px (left) and -6.2 px (right)") && e.contains("alike on both sides"), "{e}");
+        let e = offsets_plausible([-5.0, 4.0], 15.0).unwrap_err().to_string();
+        assert!(e.contains("opposite") && e.contains("off by about 4.5 px"), "{e}");
+    }
 }
