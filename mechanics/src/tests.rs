@@ -306,3 +306,135 @@ fn the_solved_surface_around_a_sphere_is_hertzs() {
     let none = solve(R, &Material::PAPER, &GridConfig::default(), &[], |_| -1.0).unwrap();
     assert!(none.sink_mm(&dome).iter().all(|&s| s == 0.0));
 }
+
+/// The merge without its shortcuts: every footprint again on every round, every direction of a
+/// group projected onto every patch it is checked against.
+fn plain_patches_over(radius_mm: f64, grid: &GridConfig, regions: &[Vec<DVec3>]) -> (Vec<Patch>, Vec<Option<usize>>) {
+    let mut groups: Vec<(Vec<DVec3>, Vec<usize>)> =
+        regions.iter().enumerate().filter(|(_, r)| !r.is_empty()).map(|(k, r)| (r.clone(), vec![k])).collect();
+    loop {
+        let footprints: Vec<Footprint> = groups.iter().map(|g| Footprint::of(radius_mm, &g.0)).collect();
+        let total: f64 = footprints.iter().map(|f| f.area_mm2()).sum();
+        let coarsest = (total / grid.max_nodes as f64).sqrt();
+        let patches: Vec<Patch> = footprints
+            .iter()
+            .map(|f| {
+                let own = (f.area_mm2() / grid.nodes_per_region as f64).sqrt();
+                f.grid(own.max(coarsest).clamp(grid.min_spacing_mm, grid.max_spacing_mm))
+            })
+            .collect();
+        let lands = |p: &Patch, d: DVec3| p.project(radius_mm, d).is_some_and(|st| p.holds(st));
+        let corners = |p: &Patch| {
+            let [i1, j1] = [p.size[0] - 1, p.size[1] - 1];
+            [(0, 0), (i1, 0), (0, j1), (i1, j1), (i1 / 2, j1 / 2)].map(|(i, j)| p.direction(radius_mm, i, j))
+        };
+        let mut merged = false;
+        'pairs: for a in 0..patches.len() {
+            for b in a + 1..patches.len() {
+                let (pa, pb) = (&patches[a], &patches[b]);
+                if corners(pa).iter().any(|&d| lands(pb, d))
+                    || corners(pb).iter().any(|&d| lands(pa, d))
+                    || groups[b].0.iter().any(|&d| lands(pa, d))
+                {
+                    let (dirs, members) = groups.remove(b);
+                    groups[a].0.extend(dirs);
+                    groups[a].1.extend(members);
+                    merged = true;
+                    break 'pairs;
+                }
+            }
+        }
+        if !merged {
+            let mut group_of = vec![None; regions.len()];
+            for (g, (_, members)) in groups.iter().enumerate() {
+                for &k in members {
+                    group_of[k] = Some(g);
+                }
+            }
+            return (patches, group_of);
+        }
+    }
+}
+
+/// A scene's worth of small regions scattered over the dome's upper part, some close enough to
+/// merge, each the outline of a disk (what `Dome::solve` hands over), from `seed`.
+fn scattered_regions(seed: u64) -> Vec<Vec<DVec3>> {
+    let mut state = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    let mut uniform = move || {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let count = 3 + (uniform() * 25.0) as usize;
+    let (cluster_theta, cluster_phi) = (uniform() * 0.9, uniform() * std::f64::consts::TAU);
+    (0..count)
+        .map(|k| {
+            if k == count / 2 {
+                return Vec::new();
+            }
+            // Most near one spot (a contact seen as a score of regions), the rest anywhere.
+            let (theta, phi) = if uniform() < 0.7 {
+                (cluster_theta + 0.15 * (uniform() - 0.5), cluster_phi + 0.3 * (uniform() - 0.5))
+            } else {
+                (uniform() * 1.2, uniform() * std::f64::consts::TAU)
+            };
+            let centre = DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+            let (e1, e2) = tangent_axes(centre);
+            let radius_mm = 0.05 + 2.0 * uniform() * uniform();
+            let points = 1 + (radius_mm * 40.0) as usize;
+            if uniform() < 0.3 {
+                // A thin streak, whose middle may cross another's grid while its corners do not.
+                let (angle, length_mm) = (uniform() * std::f64::consts::PI, 1.0 + 6.0 * uniform());
+                return (0..=4 * points)
+                    .map(|i| {
+                        let along = length_mm * (i as f64 / (4 * points) as f64 - 0.5);
+                        from_map(centre, e1, e2, R, [along * angle.cos(), along * angle.sin()])
+                    })
+                    .collect();
+            }
+            (0..points)
+                .map(|i| {
+                    let a = i as f64 * std::f64::consts::TAU / points as f64;
+                    from_map(centre, e1, e2, R, [radius_mm * a.cos(), radius_mm * a.sin()])
+                })
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn patches_are_those_of_the_plain_merge() {
+    let mut merges = 0;
+    for seed in 0..60 {
+        let regions = scattered_regions(seed);
+        for grid in [GridConfig::default(), GridConfig { max_nodes: 40, ..GridConfig::default() }] {
+            let (patches, group_of) = patches_over(R, &grid, &regions);
+            let (plain, plain_group_of) = plain_patches_over(R, &grid, &regions);
+            assert_eq!(group_of, plain_group_of, "seed {seed}");
+            assert_eq!(patches.len(), plain.len(), "seed {seed}");
+            for (p, q) in patches.iter().zip(&plain) {
+                assert_eq!(
+                    (p.normal, p.e1, p.e2, p.spacing_mm, p.origin_mm, p.size),
+                    (q.normal, q.e1, q.e2, q.spacing_mm, q.origin_mm, q.size),
+                    "seed {seed}"
+                );
+            }
+            merges += regions.iter().filter(|r| !r.is_empty()).count() - patches.len();
+        }
+    }
+    // The cases merge, or the shortcut would have nothing to keep equal.
+    assert!(merges > 100, "only {merges} merges");
+    // Two thin streaks crossing away from both their middles: no corner or centre of either grid
+    // lies in the other, only the directions of one show the overlap.
+    let (e1, e2) = tangent_axes(DVec3::Z);
+    let streak = |from: [f64; 2], to: [f64; 2]| -> Vec<DVec3> {
+        (0..=120)
+            .map(|i| {
+                let f = i as f64 / 120.0;
+                from_map(DVec3::Z, e1, e2, R, [from[0] + f * (to[0] - from[0]), from[1] + f * (to[1] - from[1])])
+            })
+            .collect()
+    };
+    let crossing = [streak([-3.0, 0.0], [3.0, 0.0]), streak([2.0, -1.0], [2.0, 5.0])];
+    let (patches, group_of) = patches_over(R, &GridConfig::default(), &crossing);
+    assert_eq!((patches.len(), group_of), (1, vec![Some(0), Some(0)]));
+}
