@@ -148,7 +148,8 @@ impl Balance {
         let mut counted = [0u32; 3];
         let (levels, references) = (frame.as_raw(), reference.as_raw());
         let bins = bin_table();
-        let pixels = mask.len().min(levels.len() / 3).min(references.len() / 3);
+        let count = |image: &RgbImage| image.width() as usize * image.height() as usize;
+        let pixels = mask.len().min(count(frame)).min(count(reference));
         for i in (0..pixels).step_by(2) {
             for c in 0..3 {
                 let q = references[3 * i + c];
@@ -188,8 +189,9 @@ impl Balance {
         // Each channel's 256 levels undone once, then looked up: per pixel, the rounding was a
         // tenth of a contact frame's time (`cargo xtask bench force`).
         let undone: [[u8; 256]; 3] = std::array::from_fn(|c| std::array::from_fn(|v| undo_level(v as u8, inverse[c])));
+        let values = 3 * out.width() as usize * out.height() as usize;
         let raw: &mut [u8] = &mut out;
-        for p in raw.chunks_exact_mut(3) {
+        for p in raw[..values].chunks_exact_mut(3) {
             (p[0], p[1], p[2]) =
                 (undone[0][usize::from(p[0])], undone[1][usize::from(p[1])], undone[2][usize::from(p[2])]);
         }
@@ -385,6 +387,14 @@ mod tests {
             for (p, q) in frame.pixels().zip(undone.pixels()) {
                 assert_eq!(q.0, [0, 1, 2].map(|c| undo_level(p.0[c], inverse[c])));
             }
+            // A container longer than its image (and a longer mask): only the image is read
+            // and changed.
+            let mut longer = frame.as_raw().clone();
+            longer.extend([7u8; 6]);
+            let longer = RgbImage::from_raw(w, h, longer).expect("container large enough");
+            let longer_mask: Vec<bool> = mask.iter().copied().chain([true; 2]).collect();
+            assert_eq!(Balance::fit(&longer, &reference, &longer_mask), fitted, "case {case}");
+            assert_eq!(fitted.undo(&longer).as_raw()[undone.as_raw().len()..], [7u8; 6]);
         }
     }
 
