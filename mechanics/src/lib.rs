@@ -318,7 +318,6 @@ fn patches_over(radius_mm: f64, grid: &GridConfig, regions: &[Vec<DVec3>]) -> (V
         group_of.push((!r.is_empty()).then(|| group_of.iter().flatten().count()));
     }
     let mut footprints: Vec<Footprint> = groups.iter().map(|dirs| Footprint::of(radius_mm, dirs)).collect();
-    let mut spreads: Vec<f64> = groups.iter().zip(&footprints).map(|(g, f)| spread_rad(g, f.normal)).collect();
     loop {
         // Each region's own share of nodes, and the whole scene within its budget: a contact
         // that covers half the dome is solved coarser, not on ten thousand nodes.
@@ -342,7 +341,7 @@ fn patches_over(radius_mm: f64, grid: &GridConfig, regions: &[Vec<DVec3>]) -> (V
             };
             probe(pa, pb)
                 || probe(pb, pa)
-                || (!beyond_reach(pa, radius_mm, footprints[b].normal, spreads[b])
+                || (!footprints[b].beyond_reach(pa, radius_mm)
                     && groups[b].iter().any(|&d| pa.project(radius_mm, d).is_some_and(|st| pa.holds(st))))
         });
         match overlap {
@@ -350,9 +349,7 @@ fn patches_over(radius_mm: f64, grid: &GridConfig, regions: &[Vec<DVec3>]) -> (V
                 let moved = groups.remove(b);
                 groups[a].extend(moved);
                 footprints.remove(b);
-                spreads.remove(b);
                 footprints[a] = Footprint::of(radius_mm, &groups[a]);
-                spreads[a] = spread_rad(&groups[a], footprints[a].normal);
                 for g in group_of.iter_mut().flatten() {
                     if *g == b {
                         *g = a;
@@ -364,23 +361,6 @@ fn patches_over(radius_mm: f64, grid: &GridConfig, regions: &[Vec<DVec3>]) -> (V
             None => return (patches, group_of),
         }
     }
-}
-
-/// The largest angle (radians) between `normal` and any of `dirs`.
-fn spread_rad(dirs: &[DVec3], normal: DVec3) -> f64 {
-    dirs.iter().map(|d| d.cross(normal).length().atan2(d.dot(normal))).fold(0.0, f64::max)
-}
-
-/// Whether no direction within `spread_rad` of `centre` can land on `patch`'s grid: every point
-/// of the grid lies within its farthest corner's distance of the patch's normal on the map, and
-/// a map distance is the dome's radius times the angle from that normal (to within the fast
-/// angle's 1e-8 rad, far inside the margin).
-fn beyond_reach(patch: &Patch, radius_mm: f64, centre: DVec3, spread_rad: f64) -> bool {
-    const MARGIN_RAD: f64 = 1e-6;
-    let end = patch.plane_mm(patch.size[0] - 1, patch.size[1] - 1);
-    let corner_mm = [patch.origin_mm[0].abs().max(end[0].abs()), patch.origin_mm[1].abs().max(end[1].abs())];
-    let apart_rad = centre.cross(patch.normal).length().atan2(centre.dot(patch.normal));
-    (apart_rad - spread_rad - MARGIN_RAD) * radius_mm > corner_mm[0].hypot(corner_mm[1])
 }
 
 /// The dome point (unit direction) at azimuthal-equidistant coordinates `st` (mm) about `normal`.
@@ -456,6 +436,14 @@ struct Footprint {
     e2: DVec3,
     lo: [f64; 2],
     hi: [f64; 2],
+    /// Whether every direction had map coordinates (none at the normal's antipode).
+    mapped_all: bool,
+}
+
+/// The farthest a box `[lo, hi]` of map coordinates reaches from the map's origin (mm): an upper
+/// bound of every point's distance in it.
+fn box_reach_mm(lo: [f64; 2], hi: [f64; 2]) -> f64 {
+    lo[0].abs().max(hi[0].abs()).hypot(lo[1].abs().max(hi[1].abs()))
 }
 
 impl Footprint {
@@ -463,18 +451,36 @@ impl Footprint {
         let normal = dirs.iter().copied().sum::<DVec3>().try_normalize().unwrap_or(DVec3::Z);
         let (e1, e2) = tangent_axes(normal);
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        let mut mapped_all = true;
         for &d in dirs {
             if let Some(st) = to_map(normal, e1, e2, radius_mm, d) {
                 for k in 0..2 {
                     lo[k] = lo[k].min(st[k]);
                     hi[k] = hi[k].max(st[k]);
                 }
+            } else {
+                mapped_all = false;
             }
         }
         if !lo[0].is_finite() {
             (lo, hi) = ([0.0; 2], [0.0; 2]);
         }
-        Footprint { normal, e1, e2, lo, hi }
+        Footprint { normal, e1, e2, lo, hi, mapped_all }
+    }
+
+    /// Whether none of this footprint's directions can land on `patch`'s grid. A map distance is
+    /// the dome's radius times the angle from the map's normal (to within the fast angle's 1e-8
+    /// rad, far inside the margin), so each direction lies within `box_reach_mm` of this
+    /// footprint's normal, and every point of the grid within its own box's reach of the patch's
+    /// normal: directions farther apart than both reaches cannot meet it.
+    fn beyond_reach(&self, patch: &Patch, radius_mm: f64) -> bool {
+        const MARGIN_RAD: f64 = 1e-6;
+        if !self.mapped_all {
+            return false;
+        }
+        let end = patch.plane_mm(patch.size[0] - 1, patch.size[1] - 1);
+        let apart_rad = self.normal.cross(patch.normal).length().atan2(self.normal.dot(patch.normal));
+        (apart_rad - MARGIN_RAD) * radius_mm - box_reach_mm(self.lo, self.hi) > box_reach_mm(patch.origin_mm, end)
     }
 
     fn area_mm2(&self) -> f64 {

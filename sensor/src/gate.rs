@@ -95,8 +95,9 @@ pub fn balance_bin(level: u8, reference_level: u8) -> usize {
 
 /// [`balance_bin`] of every pair of levels, `table[reference << 8 | level]`, filled once: the fit
 /// looks a sample's bin up instead of dividing (a tenth of a contact frame's time in `cargo
-/// xtask bench force`, where each frame is fitted twice: the gate and the input).
-fn bin_table() -> &'static [u16] {
+/// xtask bench force`, where each frame is fitted twice: the gate and the input), and the ONNX
+/// export carries the same table, so that no runtime's division moves a bin.
+pub fn balance_bin_table() -> &'static [u16] {
     static TABLE: std::sync::OnceLock<Vec<u16>> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| (0..=255u8).flat_map(|q| (0..=255u8).map(move |p| balance_bin(p, q) as u16)).collect())
 }
@@ -147,7 +148,7 @@ impl Balance {
         let mut hist = vec![[0u32; 3]; BALANCE_BINS];
         let mut counted = [0u32; 3];
         let (levels, references) = (frame.as_raw(), reference.as_raw());
-        let bins = bin_table();
+        let bins = balance_bin_table();
         let count = |image: &RgbImage| image.width() as usize * image.height() as usize;
         let pixels = mask.len().min(count(frame)).min(count(reference));
         for i in (0..pixels).step_by(2) {

@@ -336,8 +336,11 @@ impl Graph {
         let flat = self.reshape("whole.balance.flat", raw, &[3 * n_px as i64]);
         // Ratios binned and bins turned into gains by tables the fit's own functions fill, so
         // that no runtime's division (tract multiplies by a reciprocal) moves a bin.
-        let table: Vec<i64> = (0..=255u8)
-            .flat_map(|q| (0..=255u8).map(move |p| if q == 0 { 0 } else { balance_bin(p, q) as i64 }))
+        // (A reference level of 0 is never sampled: its entries are 0.)
+        let table: Vec<i64> = balance_bin_table()
+            .iter()
+            .enumerate()
+            .map(|(i, &bin)| if i >> 8 == 0 { 0 } else { i64::from(bin) })
             .collect();
         let bin_table = self.ints("whole.balance.bin_table", &[table.len() as i64], &table);
         let gain_table: Vec<f32> = (0..BALANCE_BINS).map(balance_gain).collect();
