@@ -27,7 +27,9 @@ pub enum InferError {
 /// reference image by more than `grey_levels` (mean over the channels).
 pub use sensor::gate::ContactGate;
 
-/// A frame's contact force, from a bundle whose network has the pressure output.
+/// A frame's contact force: the pressure solved on the predicted depth or the network's pressure
+/// output, and their resultant, or, from a network with the force head, the head's force with
+/// that pressure scaled to it.
 #[derive(Clone, Debug)]
 pub struct Force {
     /// Contact pressure (kPa) on the crop's grid: zero outside the useful disk and wherever
@@ -35,6 +37,20 @@ pub struct Force {
     pub pressure: PressureMap,
     /// The pressure's resultant on the sensor (sensor frame).
     pub wrench: Wrench,
+}
+
+impl Force {
+    /// This pressure map scaled so that its resultant's size is that of `force_n` (N, sensor
+    /// frame), which becomes the wrench's force: the map's shape, another estimate's total. The
+    /// torque scales with the map. A map without pressure stays zero.
+    pub fn scaled_to(mut self, force_n: [f64; 3]) -> Force {
+        let size = |v: [f64; 3]| v.iter().map(|c| c * c).sum::<f64>().sqrt();
+        let scale = size(force_n) / self.wrench.force_magnitude_n().max(f64::from(f32::MIN_POSITIVE));
+        self.pressure.pressure_kpa.iter_mut().for_each(|p| *p = (*p as f64 * scale) as f32);
+        self.wrench.torque_nmm = self.wrench.torque_nmm.map(|t| t * scale);
+        self.wrench.force_n = force_n;
+        self
+    }
 }
 
 /// The unit's contact model: the dome as the crop sees it and the elastomer fitted to its labels.
@@ -125,6 +141,8 @@ pub struct Predictor {
     tare_mm: Option<Vec<f32>>,
     /// The same for the pressure output (kPa, output grid).
     tare_kpa: Option<Vec<f32>>,
+    /// The same for the force head (N).
+    tare_force_n: Option<[f32; 3]>,
     /// The dome area each crop pixel sees, for the pressure's resultant (a bundle with the
     /// pressure output).
     areas: Option<std::sync::Arc<DomeAreas>>,
@@ -134,6 +152,11 @@ pub struct Predictor {
     /// Force from the contact solved on the predicted depth (true where the bundle records its
     /// elastomer) or, false, from the network's pressure output where it has one.
     pub solve_force: bool,
+    /// The force from the network's force head where it has one (true by default; the better
+    /// estimate on the quickstart's scenes, BENCHMARKS.md "The force head"), with the pressure
+    /// map ([`solve_force`](Self::solve_force)'s or the network's) scaled to it; false: the
+    /// pressure map's own resultant.
+    pub head_force: bool,
     /// Takes each frame's global drift against the reference ([`sensor::gate::Balance`]: an LED
     /// warming, auto exposure, white balance) out before the network reads it, so that it reads
     /// the colours it was trained on. On by default; without a reference there is nothing to
@@ -168,9 +191,11 @@ impl Predictor {
             border_fill,
             tare_mm: None,
             tare_kpa: None,
+            tare_force_n: None,
             areas: file.model.pressure.then(|| std::sync::Arc::new(DomeAreas::new(&file.sensor))),
             solver: None,
             solve_force: false,
+            head_force: true,
             balance_input: true,
             file,
         };
@@ -185,12 +210,13 @@ impl Predictor {
     /// depth from now on; `None` turns the tare off. One network pass.
     pub fn set_tare(&mut self, frame: Option<&RgbImage>) -> Result<(), InferError> {
         // Worked out before anything changes: a frame that fails leaves the tare as it was.
-        (self.tare_mm, self.tare_kpa) = match frame {
+        (self.tare_mm, self.tare_kpa, self.tare_force_n) = match frame {
             Some(frame) => {
                 let heads = self.net.forward_heads(self.input(std::slice::from_ref(frame))?);
-                (Some(self.output_mm(heads.depth)), heads.pressure.map(output_kpa))
+                let force = heads.force.map(|f| output_n(f)[0].map(|v| v as f32));
+                (Some(self.output_mm(heads.depth)), heads.pressure.map(output_kpa), force)
             }
-            None => (None, None),
+            None => (None, None, None),
         };
         Ok(())
     }
@@ -307,7 +333,25 @@ impl Predictor {
     /// Whether predictions carry contact force: solved on the predicted depth (the bundle
     /// records its unit's elastomer) or from the network's pressure output.
     pub fn has_force(&self) -> bool {
-        self.solving() || self.areas.is_some()
+        self.solving() || self.areas.is_some() || self.heading()
+    }
+
+    /// Where predictions' force comes from, in words (`None`: they carry none).
+    pub fn force_source(&self) -> Option<&'static str> {
+        Some(match (self.heading(), self.solving(), self.areas.is_some()) {
+            (true, true, _) => "the network's force head, with the contact solved on the predicted depth scaled to it",
+            (true, false, true) => "the network's force head, with its pressure output scaled to it",
+            (true, false, false) => "the network's force head (no pressure map: no elastomer, no pressure output)",
+            (false, true, _) => {
+                "the contact solved on the predicted depth with the elastomer fitted to the train labels"
+            }
+            (false, false, true) => "the network's pressure output",
+            (false, false, false) => return None,
+        })
+    }
+
+    fn heading(&self) -> bool {
+        self.head_force && self.net.has_force_head()
     }
 
     fn solving(&self) -> bool {
@@ -366,12 +410,31 @@ impl Predictor {
         }
         let heads = self.net.forward_heads(self.input_of_crops(frames));
         let depths = self.depth_maps(heads.depth);
-        let forces: Vec<Option<Force>> = match heads.pressure {
+        let mut forces: Vec<Option<Force>> = match heads.pressure {
             _ if self.solving() => depths.iter().map(|d| self.solved_force(d)).collect(),
             Some(p) => self.forces(p, &depths).into_iter().map(Some).collect(),
             None => vec![None; depths.len()],
         };
+        if let Some(head) = heads.force.filter(|_| self.heading()) {
+            for ((force, depth), f) in forces.iter_mut().zip(&depths).zip(output_n(head)) {
+                *force = Some(self.head_force_of(force.take(), depth, f));
+            }
+        }
         depths.into_iter().zip(forces).map(|(depth, force)| Prediction { depth, force, network_ran: true }).collect()
+    }
+
+    /// The force head's `head_n` (N) as predictions report it: less its reading of the tare
+    /// frame, zero where `depth` shows no contact, with `map`'s pressure scaled to it (a zero
+    /// map where there is none).
+    fn head_force_of(&self, map: Option<Force>, depth: &DepthMap, head_n: [f64; 3]) -> Force {
+        let contact = depth.depth_mm.iter().any(|&d| d > sensor::CONTACT_THRESHOLD_MM);
+        let tare = self.tare_force_n.unwrap_or_default();
+        let force_n: [f64; 3] = std::array::from_fn(|k| if contact { head_n[k] - tare[k] as f64 } else { 0.0 });
+        let map = map.unwrap_or_else(|| Force {
+            pressure: PressureMap { size_px: depth.size_px, pressure_kpa: vec![0.0; depth.depth_mm.len()] },
+            wrench: Wrench::default(),
+        });
+        map.scaled_to(force_n)
     }
 
     /// The pressure output (network units) to pressure maps (kPa) on the crop's grid, each
@@ -490,6 +553,12 @@ impl Predictor {
 }
 
 /// The pressure output (network units) in kPa, planes one after another.
+/// The force head's output (`[N, 3]`, loss units) in N, one force per image.
+fn output_n(out: Tensor<2>) -> Vec<[f64; 3]> {
+    let values: Vec<f32> = out.into_data().convert::<f32>().try_into_vec::<f32>().expect("f32 output");
+    values.chunks(3).map(|v| std::array::from_fn(|k| (v[k] * model::FORCE_N_PER_LOSS_UNIT) as f64)).collect()
+}
+
 fn output_kpa(out: Tensor<4>) -> Vec<f32> {
     let values: Vec<f32> = out.into_data().try_to_vec::<f32>().expect("f32 output");
     values.into_iter().map(|v| v * model::PRESSURE_KPA_PER_UNIT).collect()

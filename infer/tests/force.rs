@@ -59,6 +59,66 @@ fn a_uniform_pressure_output_gives_the_caps_projected_force() {
     assert!(back.pressure_kpa.iter().zip(&force.pressure.pressure_kpa).all(|(a, b)| (a - b).abs() <= 0.05));
 }
 
+/// A bundle with the force head reports the head's force, with the pressure map scaled to it
+/// (the map's shape, the head's size; the torque with the map); tared, less the head's reading of
+/// the reference frame; the gate's answer pushes nothing; with `head_force` off, the map's own
+/// resultant again.
+#[test]
+fn the_force_head_gives_the_force_and_the_pressure_scales_to_it() {
+    use burn::module::Param;
+    use burn::tensor::Tensor;
+    const HEAD_N: [f64; 3] = [3.0, -4.0, -12.0];
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bundle");
+    let config = pressure_config().with_force_head(Some(8));
+    // A head that answers HEAD_N whatever the frame: its linear map's weights zero, its bias set.
+    let renderer = bundle_with(&dir, config, |net, scale| {
+        let mut net = constant(net, scale);
+        let head = net.decoder.force.as_mut().expect("the force head");
+        let w = head.linear.weight.val();
+        head.linear.weight = Param::from_tensor(w.zeros_like());
+        let device = w.device();
+        let bias = HEAD_N.map(|v| v as f32 / model::FORCE_N_PER_LOSS_UNIT);
+        head.linear.bias = Some(Param::from_tensor(Tensor::<1>::from_floats(bias, &device)));
+        net
+    });
+    let mut p = Predictor::load(&dir, &model::backend::default_device()).unwrap();
+    assert!(p.has_force() && p.head_force);
+    let (_, frame) = pressed(&renderer);
+    let areas = sensor::DomeAreas::new(&p.file.sensor);
+
+    // Untared: the constant network reads contact everywhere; the head's force is reported,
+    // and the uniform pressure is scaled to its size.
+    p.set_tare(None).unwrap();
+    let out = p.predict_network_all(std::slice::from_ref(&frame)).unwrap().remove(0);
+    let force = out.force.expect("a force bundle reports force");
+    for (got, want) in force.wrench.force_n.iter().zip(HEAD_N) {
+        assert!((got - want).abs() < 1e-5, "{:?} N against {HEAD_N:?}", force.wrench.force_n);
+    }
+    p.head_force = false;
+    let map = p.predict_network_all(std::slice::from_ref(&frame)).unwrap().remove(0).force.unwrap();
+    let scale = 13.0 / map.wrench.force_magnitude_n();
+    for ((&v, &m), &own) in force.pressure.pressure_kpa.iter().zip(&p.mask).zip(&map.pressure.pressure_kpa) {
+        assert!((v as f64 - own as f64 * scale).abs() <= 1e-4 * v.abs().max(1.0) as f64, "{v} against {own} x {scale}");
+        assert!(!m || v > 0.0);
+    }
+    let resultant = areas.wrench(&force.pressure.pressure_kpa).force_magnitude_n();
+    assert!((resultant - 13.0).abs() < 1e-3 * 13.0, "the scaled map's resultant is {resultant} N");
+    for (t, own) in force.wrench.torque_nmm.iter().zip(map.wrench.torque_nmm) {
+        assert!((t - own * scale).abs() <= 1e-9 * (1.0 + own.abs() * scale), "torque {t} against {own} x {scale}");
+    }
+
+    // Tared on the reference frame: the constant network reads no contact, so no force.
+    p.head_force = true;
+    let reference = p.reference.clone().unwrap();
+    p.set_tare(Some(&reference)).unwrap();
+    let tared = p.predict_network_all(std::slice::from_ref(&frame)).unwrap().remove(0);
+    assert_eq!(tared.force.unwrap().wrench, sensor::Wrench::default());
+    let untouched = p.predict_all(&reference).unwrap();
+    assert!(!untouched.network_ran);
+    assert_eq!(untouched.force.unwrap().wrench, sensor::Wrench::default());
+}
+
 /// A depth-only bundle has no pressure to write, and says so; its predictions carry no force,
 /// unless the command names an elastomer to solve them with.
 #[test]

@@ -2,7 +2,7 @@
 //! `Predictor::predict_all`'s depth within 1e-3 mm, its pressure and force, and its gate's
 //! answer: on a pressed frame, on the same frame drifted (the balance at work), and on an
 //! untouched frame, as it is and drifted (the gate, on the balanced comparison, answers zeros
-//! through its `If`); for RGB and reference-difference inputs.
+//! through its `If`); for RGB and reference-difference inputs, and with the force head.
 
 use crate::common;
 
@@ -87,6 +87,9 @@ fn check(config: DenseDepthConfig, edit: impl FnOnce(DenseDepth) -> DenseDepth, 
             let peak = force.pressure.pressure_kpa.iter().fold(0f32, |m, &p| m.max(p));
             let diff = max_diff(&pressure, &force.pressure.pressure_kpa);
             assert!(diff <= 1e-3 * peak.max(1.0), "{what}: pressure {diff} kPa from predict (peak {peak})");
+            if file.model.force_head.is_some() && what.starts_with("untouched") {
+                assert_eq!(force.wrench.force_magnitude_n(), 0.0, "{what}: an untouched frame pushes nothing");
+            }
             let got_n = got.force_n.expect("the force output");
             for (g, w) in got_n.iter().zip(force.wrench.force_n) {
                 assert!(
@@ -135,5 +138,7 @@ fn the_whole_predictor_in_onnx_gives_predicts_depth_pressure_and_force() {
         net.encoder.conv0 = scaled(net.encoder.conv0, 3..6, 2e4);
         net
     };
-    check(config.with_pressure(true), edit, 0.1);
+    check(config.clone().with_pressure(true), edit, 0.1);
+    // The force head: its force, tared, and the pressure scaled to it.
+    check(config.with_pressure(true).with_force_head(Some(8)), edit, 0.1);
 }

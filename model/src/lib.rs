@@ -29,7 +29,7 @@ pub use input::{InputChannels, InputEncoder, InputEncoding};
 pub use loss::{DepthLoss, DepthLossConfig, FORCE_N_PER_LOSS_UNIT, ForceTargets};
 pub use network::{
     Activation, ConfigError, Decoder, DenseBlock, DenseDepth, DenseDepthConfig, DenseLayer, DenseNetConfig,
-    DenseNetEncoder, Heads, Preset, Skips, Transition, UpBlock, Upsample, fold_batch_norm, interpolation_matrix,
-    upsample_bilinear, upsample_mode_for,
+    DenseNetEncoder, ForceHead, Heads, Preset, Skips, Transition, UpBlock, Upsample, fold_batch_norm,
+    interpolation_matrix, upsample_bilinear, upsample_mode_for,
 };
 pub use scale::{DepthScale, PAPER_NET_RANGE, PRESSURE_KPA_PER_UNIT, ScaleError, UNIT_NET_RANGE};

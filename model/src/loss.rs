@@ -52,6 +52,15 @@ pub struct DepthLoss {
     /// Mean over the images with a force target of |F_pred - F|, summed over x, y, z (N): the
     /// pressure output's resultant against the sample's wrench.
     pub force_l1_n: Option<Tensor<1>>,
+    /// The same for the force head's output, where the network has one.
+    pub head_force_l1_n: Option<Tensor<1>>,
+}
+
+/// Mean over the images with a force target of |F_pred - F| summed over x, y, z (N);
+/// `force_n`: `[N, 3]`, N.
+fn mean_force_error_n(force_n: Tensor<2>, f: &ForceTargets) -> Tensor<1> {
+    let err = (force_n - f.force_n.clone()).abs().sum_dim(1) * f.has.clone();
+    err.sum() / f.has.clone().sum().clamp_min(1.0)
 }
 
 /// The force (N) that counts as one unit of loss in [`DepthLossConfig::forward_heads`]'s force
@@ -166,7 +175,7 @@ impl DepthLossConfig {
             Some(c) => total + c.clone().mul_scalar(self.contact_weight * self.l1_weight),
             None => total,
         };
-        DepthLoss { total, ssim, gradient, l1, contact_l1, pressure_l1: None, force_l1_n: None }
+        DepthLoss { total, ssim, gradient, l1, contact_l1, pressure_l1: None, force_l1_n: None, head_force_l1_n: None }
     }
 
     /// The loss of a network's outputs: depth's ([`forward_masked`](Self::forward_masked) over
@@ -178,6 +187,8 @@ impl DepthLossConfig {
     /// (an L1 fit keeps the peaks low). The resultant is taken of `heads.pressure_head_only`
     /// where there is one, so that this term calibrates the pressure convolution without
     /// pulling the features depth shares (it doubled the contact depth error when it could).
+    /// A network with the force head adds the same weight times its output's mean |F_pred - F|
+    /// (in the same units); that term does reach the encoder, through the head alone.
     pub fn forward_heads(
         &self,
         heads: crate::Heads,
@@ -187,12 +198,17 @@ impl DepthLossConfig {
         force: Option<ForceTargets>,
     ) -> DepthLoss {
         let mut loss = self.forward_masked(heads.depth, target, Some(mask));
+        if let (Some(head), Some(f)) = (heads.force.as_ref(), force.as_ref()) {
+            let force_n = head.clone().cast(DType::F32).mul_scalar(FORCE_N_PER_LOSS_UNIT);
+            let mean = mean_force_error_n(force_n, f);
+            loss.total = loss.total + mean.clone().mul_scalar(self.pressure_weight / FORCE_N_PER_LOSS_UNIT as f64);
+            loss.head_force_l1_n = Some(mean);
+        }
         if let (Some(pred), Some(f)) = (heads.pressure_head_only.as_ref().or(heads.pressure.as_ref()), force) {
             let [n, _, h, w] = pred.dims();
             let pred = pred.clone().cast(DType::F32).reshape([n, 1, h * w]);
-            let resultant = (f.per_unit * pred).sum_dim(2).reshape([n, 3]);
-            let err = (resultant - f.force_n).abs().sum_dim(1) * f.has.clone();
-            let mean = err.sum() / f.has.sum().clamp_min(1.0);
+            let resultant = (f.per_unit.clone() * pred).sum_dim(2).reshape([n, 3]);
+            let mean = mean_force_error_n(resultant, &f);
             loss.total = loss.total + mean.clone().mul_scalar(self.pressure_weight / FORCE_N_PER_LOSS_UNIT as f64);
             loss.force_l1_n = Some(mean);
         }
@@ -282,8 +298,12 @@ mod tests {
         let config = DepthLossConfig::new().with_pressure_weight(2.0);
         let ones = Tensor::<4>::ones([1, 1, 12, 12], &device);
         let depth_only = config.forward_masked(target.clone(), target.clone(), Some(ones.clone()));
-        let heads =
-            |p: Option<Tensor<4>>| crate::Heads { depth: target.clone(), pressure: p, pressure_head_only: None };
+        let heads = |p: Option<Tensor<4>>| crate::Heads {
+            depth: target.clone(),
+            pressure: p,
+            pressure_head_only: None,
+            force: None,
+        };
         // Pressure off by 1 on the 16 patch pixels and 0.5 on two others; the mask keeps the
         // left half of the map (8 patch pixels and both others): (8 + 1) / 72.
         let mut m = vec![0f32; 144];
@@ -321,10 +341,54 @@ mod tests {
         let force = ForceTargets { per_unit, force_n, has };
         let depth2 = Tensor::cat(vec![target.clone(), target.clone()], 0);
         let ones2 = Tensor::cat(vec![ones.clone(), ones.clone()], 0);
-        let heads2 = crate::Heads { depth: depth2.clone(), pressure: Some(pred2), pressure_head_only: None };
+        let heads2 =
+            crate::Heads { depth: depth2.clone(), pressure: Some(pred2), pressure_head_only: None, force: None };
         let with = config.forward_heads(heads2, depth2.clone(), ones2.clone(), None, Some(force));
         assert!((scalar(with.force_l1_n.unwrap()) - 4.0).abs() < 1e-3);
         let base = scalar(config.forward_masked(depth2.clone(), depth2, Some(ones2)).total);
         assert!((scalar(with.total) - base - 2.0 * 4.0 / FORCE_N_PER_LOSS_UNIT).abs() < 1e-4);
+    }
+
+    /// The force head's term: the mean over images with a target of |F_head - F| (N, summed over
+    /// x, y, z), weighted into the total beside the other terms; its gradient reaches the head's
+    /// output.
+    #[test]
+    fn the_force_heads_term_is_its_mean_error_and_adds_to_the_total() {
+        let device = crate::backend::default_device().autodiff();
+        let (_, target) = patch_case(&device);
+        let scalar = |t: Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap()[0];
+        let config = DepthLossConfig::new().with_pressure_weight(2.0);
+        let ones = Tensor::<4>::ones([2, 1, 12, 12], &device);
+        let depth = Tensor::cat(vec![target.clone(), target.clone()], 0);
+        // Heads answering (1, 0, -10) N and (0, 0, 0) N; targets (0, 0, -12) N and, for the
+        // second image, none: |1| + |2| = 3 N over the one image with a target.
+        let head = Tensor::<2>::from_data(
+            TensorData::new(
+                vec![1.0 / FORCE_N_PER_LOSS_UNIT, 0.0, -10.0 / FORCE_N_PER_LOSS_UNIT, 0.0, 0.0, 0.0],
+                [2, 3],
+            ),
+            &device,
+        )
+        .require_grad();
+        let force = ForceTargets {
+            per_unit: Tensor::<3>::zeros([2, 3, 144], &device),
+            force_n: Tensor::<2>::from_data(TensorData::new(vec![0f32, 0.0, -12.0, 7.0, 7.0, 7.0], [2, 3]), &device),
+            has: Tensor::<2>::from_data(TensorData::new(vec![1f32, 0.0], [2, 1]), &device),
+        };
+        let heads =
+            crate::Heads { depth: depth.clone(), pressure: None, pressure_head_only: None, force: Some(head.clone()) };
+        let with = config.forward_heads(heads, depth.clone(), ones.clone(), None, Some(force));
+        assert!((scalar(with.head_force_l1_n.clone().unwrap()) - 3.0).abs() < 1e-4);
+        assert!(with.force_l1_n.is_none() && with.pressure_l1.is_none());
+        let base = scalar(config.forward_masked(depth.clone(), depth, Some(ones)).total);
+        assert!((scalar(with.total.clone()) - base - 2.0 * 3.0 / FORCE_N_PER_LOSS_UNIT).abs() < 1e-4);
+        // d total / d head: weight * sign(error) for the first image (x and z over, y exact),
+        // nothing for the second.
+        let grads = with.total.backward();
+        let g = head.grad(&grads).unwrap().into_data().try_to_vec::<f32>().unwrap();
+        let w = 2.0f32;
+        for (got, want) in g.iter().zip([w, 0.0, w, 0.0, 0.0, 0.0]) {
+            assert!((got - want).abs() < 1e-4, "{g:?}");
+        }
     }
 }

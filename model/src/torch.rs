@@ -51,6 +51,15 @@ pub fn differences_from_reference(config: &DenseDepthConfig) -> Vec<String> {
                 .to_string(),
         );
     }
+    if config.pressure {
+        out.push("the network has a pressure output: a second 3x3 convolution (decoder.pressure) beside conv3".into());
+    }
+    if let Some(hidden) = config.force_head {
+        out.push(format!(
+            "the network has a force head (decoder.force): a 1x1 convolution to {hidden} channels on relu(norm5), \
+             LeakyReLU(0.2), the mean over the image, a linear map to 3"
+        ));
+    }
     out
 }
 
@@ -79,8 +88,13 @@ pub fn state_dict_safetensors(model: &DenseDepth) -> Result<Vec<u8>, TorchExport
         let path = t.name.clone();
         let failed = |message: String| TorchExportError::Tensor { name: path.clone(), message };
         let data = burn::store::bridge::into_data(t).map_err(|e| failed(e.to_string()))?;
-        let shape = data.shape().to_vec();
-        let values = data.convert::<f32>().try_into_vec::<f32>().map_err(|e| failed(format!("{e:?}")))?;
+        let mut shape = data.shape().to_vec();
+        let mut values = data.convert::<f32>().try_into_vec::<f32>().map_err(|e| failed(format!("{e:?}")))?;
+        if let (&[inputs, outputs], true) = (shape.as_slice(), path.ends_with(".linear.weight")) {
+            // Burn's Linear holds [in, out]; PyTorch's nn.Linear [out, in].
+            values = (0..inputs * outputs).map(|k| values[(k % inputs) * outputs + k / inputs]).collect();
+            shape = vec![outputs, inputs];
+        }
         let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
         let key = densedepth_key(&path);
         if let Some(norm) = key.strip_suffix(".running_var") {

@@ -92,34 +92,53 @@ fn the_pytorch_fixture_exported_gives_pytorchs_output() {
 }
 
 /// A network with the pressure output exports it as the graph's second output, named and
-/// scaled in the metadata; tract gives Burn's values for both.
+/// scaled in the metadata; one with the force head too exports the head's force (N,
+/// `[batch, 3]`) as the third; tract gives Burn's values for all.
 #[test]
-fn the_pressure_output_is_the_graphs_second() {
+fn the_pressure_output_is_the_graphs_second_and_the_force_head_its_third() {
     let device = model::backend::default_device();
-    device.seed(5);
-    let config = DenseDepthConfig::new(DenseNetConfig::tiny()).with_pressure(true);
-    let net = config.init(&device);
-    let bytes = model::onnx::export(&net, &bundle_file(&config)).unwrap();
-    let shape = [2, 3, 40, 52];
-    let x = burn::tensor::Tensor::<4>::random(shape, Distribution::Uniform(0.0, 1.0), &device);
-    let input = x.to_data().try_to_vec::<f32>().unwrap();
-    let heads = net.forward_heads(x);
-    let model = tract_onnx::onnx().model_for_read(&mut &bytes[..]).unwrap();
-    let names: Vec<&str> = model.output_outlets().unwrap().iter().map(|o| model.node(o.node).name.as_str()).collect();
-    assert_eq!(names.len(), 2, "{names:?}");
-    let scale = model.properties.get("onnx.metadata_props.densetact.pressure_kpa_per_unit").expect("pressure scale");
-    let scale = scale.to_plain_array_view::<String>().unwrap().iter().next().unwrap().clone();
-    assert_eq!(scale.parse::<f32>().unwrap(), model::PRESSURE_KPA_PER_UNIT);
-    let plan =
-        model.with_input_fact(0, f32::fact(shape).into()).unwrap().into_optimized().unwrap().into_runnable().unwrap();
-    let out = plan.run(tvec!(Tensor::from(tract_ndarray::Array4::from_shape_vec(shape, input).unwrap()).into_tvalue()));
-    let out = out.unwrap();
-    let want = [heads.depth, heads.pressure.expect("the pressure output")];
-    assert_ne!(to_vec(want[0].clone()), to_vec(want[1].clone()), "two heads, two maps");
-    for (got, want) in out.iter().zip(want) {
-        let view = got.to_plain_array_view::<f32>().unwrap();
-        assert_eq!(view.shape(), want.dims().as_slice());
-        let (abs, rel) = errors(&view.iter().copied().collect::<Vec<_>>(), &to_vec(want));
-        assert!(rel <= 1e-4, "max_abs_err={abs} max_rel_err={rel}");
+    for head in [None, Some(8)] {
+        device.seed(5);
+        let config = DenseDepthConfig::new(DenseNetConfig::tiny()).with_pressure(true).with_force_head(head);
+        let net = config.init(&device);
+        let bytes = model::onnx::export(&net, &bundle_file(&config)).unwrap();
+        let shape = [2, 3, 40, 52];
+        let x = burn::tensor::Tensor::<4>::random(shape, Distribution::Uniform(0.0, 1.0), &device);
+        let input = x.to_data().try_to_vec::<f32>().unwrap();
+        let heads = net.forward_heads(x);
+        let model = tract_onnx::onnx().model_for_read(&mut &bytes[..]).unwrap();
+        let names: Vec<&str> =
+            model.output_outlets().unwrap().iter().map(|o| model.node(o.node).name.as_str()).collect();
+        // (tract names outputs by the nodes that make them.)
+        let mut want_names = vec!["decoder.conv3", "decoder.pressure"];
+        want_names.extend(head.map(|_| "decoder.force.n"));
+        assert_eq!(names, want_names);
+        let scale =
+            model.properties.get("onnx.metadata_props.densetact.pressure_kpa_per_unit").expect("pressure scale");
+        let scale = scale.to_plain_array_view::<String>().unwrap().iter().next().unwrap().clone();
+        assert_eq!(scale.parse::<f32>().unwrap(), model::PRESSURE_KPA_PER_UNIT);
+        let plan = model
+            .with_input_fact(0, f32::fact(shape).into())
+            .unwrap()
+            .into_optimized()
+            .unwrap()
+            .into_runnable()
+            .unwrap();
+        let out =
+            plan.run(tvec!(Tensor::from(tract_ndarray::Array4::from_shape_vec(shape, input).unwrap()).into_tvalue()));
+        let out = out.unwrap();
+        let map = |t: burn::tensor::Tensor<4>| (t.dims().to_vec(), to_vec(t));
+        let mut want = vec![map(heads.depth), map(heads.pressure.expect("the pressure output"))];
+        assert_ne!(want[0].1, want[1].1, "two heads, two maps");
+        if let Some(f) = heads.force {
+            want.push((f.dims().to_vec(), to_vec(f.mul_scalar(model::FORCE_N_PER_LOSS_UNIT))));
+        }
+        assert_eq!(out.len(), want.len());
+        for (got, (dims, want)) in out.iter().zip(want) {
+            let view = got.to_plain_array_view::<f32>().unwrap();
+            assert_eq!(view.shape(), dims.as_slice());
+            let (abs, rel) = errors(&view.iter().copied().collect::<Vec<_>>(), &want);
+            assert!(rel <= 1e-4, "head {head:?}: max_abs_err={abs} max_rel_err={rel}");
+        }
     }
 }

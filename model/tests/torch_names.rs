@@ -49,9 +49,17 @@ fn keys_follow_the_reference_model() {
 fn our_architectures_round_trip_exactly_and_say_how_they_differ() {
     let tmp = tempfile::tempdir().unwrap();
     let device = model::backend::default_device();
-    for (input, full) in [(InputChannels::Rgb, false), (InputChannels::RgbDifference, true)] {
+    for (input, full, force) in [
+        (InputChannels::Rgb, false, false),
+        (InputChannels::RgbDifference, true, false),
+        (InputChannels::Rgb, false, true),
+    ] {
         device.seed(5);
-        let config = DenseDepthConfig::new(DenseNetConfig::tiny()).with_input(input).with_full_resolution(full);
+        let config = DenseDepthConfig::new(DenseNetConfig::tiny())
+            .with_input(input)
+            .with_full_resolution(full)
+            .with_pressure(force)
+            .with_force_head(force.then_some(8));
         let model = config.init(&device);
         let (bytes, back) = round_trip(&model, tmp.path());
         assert_eq!(back.config, config, "the configuration read off the shapes");
@@ -66,7 +74,17 @@ fn our_architectures_round_trip_exactly_and_say_how_they_differ() {
         let bottleneck = config.encoder.skip_channels().1;
         assert_eq!(st.tensor("encoder.original_model.classifier.weight").unwrap().shape(), [1000, bottleneck]);
         let differences = differences_from_reference(&config);
-        assert_eq!(differences.len(), usize::from(input != InputChannels::Rgb) + usize::from(full), "{differences:?}");
+        let want = usize::from(input != InputChannels::Rgb) + usize::from(full) + 2 * usize::from(force);
+        assert_eq!(differences.len(), want, "{differences:?}");
+        if force {
+            // PyTorch's nn.Linear holds [out, in]; Burn's [in, out].
+            let key = "decoder.force.linear.weight";
+            assert_eq!(st.tensor(key).unwrap().shape(), [3, 8]);
+            let burn = &tensors(&model)[key].1;
+            let torch: Vec<u32> =
+                st.tensor(key).unwrap().data().chunks(4).map(|b| u32::from_le_bytes(b.try_into().unwrap())).collect();
+            assert_eq!(torch[1], burn[3], "[0][1] of PyTorch's is [1][0] of Burn's");
+        }
     }
 }
 

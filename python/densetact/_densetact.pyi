@@ -21,7 +21,8 @@ class Force:
         """Contact pressure (kPa) on the sensor's crop; zero off contact."""
     @property
     def force_n(self) -> npt.NDArray[np.float64]:
-        """The resultant force on the sensor (N, sensor frame, x y z)."""
+        """The force on the sensor (N, sensor frame, x y z): the network's force head's where it
+        has one (the pressure then scaled to it), else the pressure's resultant."""
     @property
     def torque_nmm(self) -> npt.NDArray[np.float64]:
         """Its moment about the dome's centre (N mm, sensor frame)."""
@@ -73,6 +74,10 @@ class Predictor:
     def is_tared(self) -> bool: ...
     @property
     def has_force(self) -> bool: ...
+    @property
+    def force_source(self) -> Optional[str]:
+        """Where predictions' force comes from, in words (the force head, the solve, the
+        pressure output), or None."""
     @property
     def crop_size_px(self) -> int: ...
     @property

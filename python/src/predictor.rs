@@ -45,7 +45,8 @@ pub(crate) struct Prediction {
 pub(crate) struct Force {
     /// Contact pressure (kPa, float32) on the crop; zero off contact.
     pressure_kpa: Py<PyArray2<f32>>,
-    /// The pressure's resultant force on the sensor (N, sensor frame: x, y, z).
+    /// The force on the sensor (N, sensor frame: x, y, z): the network's force head's where it
+    /// has one (the pressure then scaled to it), else the pressure's resultant.
     force_n: Py<PyArray1<f64>>,
     /// Its moment about the dome's centre (N mm, sensor frame).
     torque_nmm: Py<PyArray1<f64>>,
@@ -226,6 +227,12 @@ impl Predictor {
     #[getter]
     fn effective_modulus_mpa(&self) -> Option<f64> {
         self.lock().file.elastomer.as_ref().map(|e| e.effective_modulus_mpa)
+    }
+
+    /// Where predictions' force comes from, in words; None where they carry none.
+    #[getter]
+    fn force_source(&self) -> Option<&'static str> {
+        self.lock().force_source()
     }
 
     /// The contact that `depth_mm` (float32, the crop's shape, e.g. a prediction's or a

@@ -127,7 +127,7 @@ def test_an_elastomer_set_from_python_solves_the_predicted_contact(bundle, cases
     p = densetact.Predictor(bundle)
     n = p.crop_size_px
     zeros = np.zeros((n, n), np.float32)
-    assert p.effective_modulus_mpa is None and not p.has_force
+    assert p.effective_modulus_mpa is None and not p.has_force and p.force_source is None
     with pytest.raises(densetact.DenseTactError, match="set_elastomer"):
         p.solve_force(zeros)
 
@@ -137,6 +137,7 @@ def test_an_elastomer_set_from_python_solves_the_predicted_contact(bundle, cases
     dent = np.where(p.mask, 0.8 * np.clip(1 - r2, 0, None), 0).astype(np.float32)
     p.set_elastomer(0.2)
     assert p.has_force and p.effective_modulus_mpa == 0.2
+    assert "solved on the predicted depth" in p.force_source
     force = p.solve_force(dent)
     f = np.linalg.norm(force.force_n)
     assert f > 0.05 and force.force_n[2] < -0.9 * f, force.force_n

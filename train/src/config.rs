@@ -90,9 +90,9 @@ pub struct FitConfig {
     /// read units it never saw. Default false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub vary_look: bool,
-    /// Weight of the pressure output's term in the loss (`model::DepthLossConfig::pressure_weight`);
-    /// above zero the network gets the pressure output and trains on the samples' pressure
-    /// maps. Default 0: depth only.
+    /// Weight of the force outputs' terms in the loss (`model::DepthLossConfig::pressure_weight`);
+    /// above zero the network gets the pressure output and the force head and trains them on the
+    /// samples' pressure maps and force. Default 0: depth only.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub force_weight: f64,
 }

@@ -65,6 +65,20 @@ pub fn export_net_with(
     } else {
         let eval =
             crate::fit::validate(net, &test, &batcher, state.config.batch, &device, state.config.on_bad_data, "test")?;
+        if let Some(f) = &eval.head_force {
+            if let Some(c) = eval.contact_l1_mm {
+                println!("test split: contact L1 {c:.4} mm, L1 {:.4} mm (the network's, untared)", eval.l1_mm);
+            }
+            println!(
+                "test split: force head's total force error {:.3} N ({:.2} % of the mean {:.2} N), vector error {:.3} N, \
+                 {} images",
+                f.total_n,
+                f.total_percent(),
+                f.mean_n,
+                f.vector_n,
+                f.images
+            );
+        }
         if eval.bad.is_empty() {
             (Some(TestError { l1_mm: eval.l1_mm, images: eval.images }), None)
         } else {
@@ -162,10 +176,10 @@ fn warn_differences(model: &model::DenseDepthConfig) {
 pub fn export_onnx(bundle: &Path, out: &Path, device: &burn::tensor::Device, whole: bool) -> Result<usize> {
     formats::output::check_file(out, &[bundle])?;
     let (net, file) = model::bundle::load_bundle(bundle, device)?;
-    if file.elastomer.is_some() && !file.model.pressure {
+    if file.elastomer.is_some() && !file.model.pressure && file.model.force_head.is_none() {
         eprintln!(
             "note: {}: the bundle's force is the contact solved on the predicted depth, which is no ONNX graph; \
-             the file carries depth alone (train with --force-weight for a pressure output it can carry)",
+             the file carries depth alone (train with --force-weight for the force head and pressure output it can carry)",
             bundle.display()
         );
     }

@@ -35,15 +35,16 @@ pub struct Start {
 }
 
 impl Start {
-    /// The network `config` trains: with the pressure output where its force weight is above
-    /// zero (given weights without one get a fresh one).
+    /// The network `config` trains: with the pressure output and the force head where its force
+    /// weight is above zero (given weights without them get fresh ones).
     fn for_config(self, config: &FitConfig, device: &Device) -> Start {
-        if config.force_weight > 0.0 && !self.model_config.pressure {
-            let model_config = self.model_config.with_pressure(true);
-            Start { weights: self.weights.map(|w| w.with_pressure_output(device)), model_config }
-        } else {
-            self
+        if config.force_weight <= 0.0 {
+            return self;
         }
+        let hidden = self.model_config.force_head.unwrap_or(model::ForceHead::DEFAULT_HIDDEN);
+        let model_config = self.model_config.with_pressure(true).with_force_head(Some(hidden));
+        let weights = self.weights.map(|w| w.with_pressure_output(device).with_force_head(hidden, device));
+        Start { weights, model_config }
     }
 }
 
@@ -443,7 +444,10 @@ impl<'a> Run<'a> {
         if let Some(view) = &self.view {
             view.epoch(&metrics, state.global_step, &net, &self.val, &self.batcher, device)?;
         }
-        let pressure = metrics.val_pressure_l1_kpa.map_or(String::new(), |p| format!(", pressure L1 {p:.2} kPa"));
+        let mut pressure = metrics.val_pressure_l1_kpa.map_or(String::new(), |p| format!(", pressure L1 {p:.2} kPa"));
+        if let Some(f) = &val.head_force {
+            pressure += &format!(", force head {:.3} N ({:.2} % of the mean force)", f.total_n, f.total_percent());
+        }
         eprintln!(
             "epoch {}: train loss {:.4}, validation L1 {:.4} mm{pressure} (loss {:.4}), {:.0} s",
             metrics.epoch, metrics.train_loss, metrics.val_l1_mm, metrics.val_loss, metrics.seconds
@@ -476,12 +480,61 @@ pub struct Evaluation {
     /// Mean per-image pressure L1 (kPa, labelled useful pixels) of a network with the pressure
     /// output, over the images that have a pressure map.
     pub pressure_l1_kpa: Option<f64>,
+    /// The force head's errors, over the images with a force label, of a network with the head.
+    pub head_force: Option<HeadForceErrors>,
     /// Mean loss over the batches.
     pub loss: f64,
     /// Images the means are over.
     pub images: usize,
     /// Samples left out (`skip`), each `file: problem`.
     pub bad: Vec<String>,
+}
+
+/// The force head's errors over a split: sums while they are gathered, means once finished.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct HeadForceErrors {
+    /// Mean ||F_pred| - |F|| (N): the total normal force's error.
+    pub total_n: f64,
+    /// Mean |F_pred - F| (N).
+    pub vector_n: f64,
+    /// Mean |F| (N) of the labels.
+    pub mean_n: f64,
+    /// Images with a force label.
+    pub images: usize,
+}
+
+impl HeadForceErrors {
+    /// `head`: a batch's force head output (`[N, 3]`, loss units); `f`: its targets.
+    fn add(&mut self, head: Tensor<2>, f: &model::ForceTargets) -> Result<()> {
+        let pred = head.into_data().convert::<f32>().try_into_vec::<f32>()?;
+        let truth = f.force_n.clone().into_data().try_into_vec::<f32>()?;
+        let has = f.has.clone().into_data().try_into_vec::<f32>()?;
+        let length = |v: [f64; 3]| v.iter().map(|c| c * c).sum::<f64>().sqrt();
+        for (i, _) in has.iter().enumerate().filter(|(_, h)| **h > 0.0) {
+            let p: [f64; 3] = std::array::from_fn(|k| (pred[3 * i + k] * model::FORCE_N_PER_LOSS_UNIT) as f64);
+            let t: [f64; 3] = std::array::from_fn(|k| truth[3 * i + k] as f64);
+            self.total_n += (length(p) - length(t)).abs();
+            self.vector_n += length(std::array::from_fn(|k| p[k] - t[k]));
+            self.mean_n += length(t);
+            self.images += 1;
+        }
+        Ok(())
+    }
+
+    fn finish(self) -> Option<Self> {
+        let n = self.images as f64;
+        (self.images > 0).then(|| HeadForceErrors {
+            total_n: self.total_n / n,
+            vector_n: self.vector_n / n,
+            mean_n: self.mean_n / n,
+            images: self.images,
+        })
+    }
+
+    /// The total force error as a percentage of the labels' mean force.
+    pub fn total_percent(&self) -> f64 {
+        100.0 * self.total_n / self.mean_n
+    }
 }
 
 /// Mean per-image L1 (mm, useful pixels) and mean loss over `data` (the split named `split` in
@@ -500,6 +553,7 @@ pub fn validate(
         .with_dynamic_range(data.scale.range() as f64)
         .with_pressure_weight(FitConfig::DEFAULT_FORCE_WEIGHT);
     let (mut pressure_sum, mut pressure_images) = (0f64, 0usize);
+    let mut force_errors = HeadForceErrors::default();
     let (mut l1_sum, mut loss_sum, mut images, mut batches) = (0f64, 0f64, 0usize, 0usize);
     let (mut contact_sum, mut contact_images) = (0f64, 0usize);
     let mut bad = Vec::new();
@@ -526,6 +580,9 @@ pub fn validate(
         let b = batcher.batch(items, device);
         let heads = net.forward_heads(b.images);
         let pred = heads.depth.clone();
+        if let (Some(head), Some(f)) = (&heads.force, &b.forces) {
+            force_errors.add(head.clone(), f)?;
+        }
         if let (Some(p), Some((target, kept))) = (&heads.pressure, &b.pressures) {
             let err = (p.clone() - target.clone()).abs() * kept.clone();
             let per_image = |t: Tensor<4>| t.sum_dim(3).sum_dim(2).flatten::<1>(0, 3).into_data().try_to_vec::<f32>();
@@ -569,6 +626,7 @@ pub fn validate(
         l1_mm: l1_sum / images as f64,
         contact_l1_mm: (contact_images > 0).then(|| contact_sum / contact_images as f64),
         pressure_l1_kpa: (pressure_images > 0).then(|| pressure_sum / pressure_images as f64),
+        head_force: force_errors.finish(),
         loss: loss_sum / batches as f64,
         images,
         bad,

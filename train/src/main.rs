@@ -149,10 +149,11 @@ struct Common {
     /// loss; default: the recipe's; fine-tuning: 0).
     #[arg(long)]
     contact_weight: Option<f64>,
-    /// Weight of the pressure output's L1 in the training loss; above 0 the network gets a
-    /// pressure output (trained on the samples' pressure maps and wrenches). The bundle's force
-    /// is the contact solved on the predicted depth either way. Default: the recipe's
-    /// (quickstart 1, paper 0); fine-tuning: 1 where the bundle has the output, else 0.
+    /// Weight of the force outputs' terms in the training loss; above 0 the network gets a
+    /// pressure output (trained on the samples' pressure maps and wrenches) and a force head
+    /// (trained on their force), whose force the bundle reports; at 0 the bundle's force is the
+    /// contact solved on the predicted depth. Default: the recipe's (quickstart 1, paper 0);
+    /// fine-tuning: 1 where the bundle has the pressure output, else 0.
     #[arg(long)]
     force_weight: Option<f64>,
     /// Vary each training sample's look as units differ (colour gains, a tone exponent; frame

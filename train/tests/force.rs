@@ -74,8 +74,21 @@ fn the_pressure_output_trains_beside_depth_and_travels_in_the_bundle() {
     let fitted = fit(&run, &config(&data, 3, 1.0), Start { model_config: tiny(), weights: None }, &device, false);
     let fitted = fitted.unwrap();
     assert!(fitted.net.has_pressure() && fitted.state.model.pressure, "a force weight gives the pressure output");
+    assert!(fitted.net.has_force_head(), "and the force head");
+    assert_eq!(fitted.state.model.force_head, Some(model::ForceHead::DEFAULT_HIDDEN));
     let h = &fitted.state.history;
-    let after = on(&fitted.net).pressure_l1_kpa.unwrap();
+    let evaluation = on(&fitted.net);
+    let after = evaluation.pressure_l1_kpa.unwrap();
+    // The head's figures: over the images with a force label, against their mean |F|;
+    // ||F'| - |F|| never exceeds |F' - F|.
+    let head = evaluation.head_force.expect("the force head's figures");
+    let labelled: Vec<f64> =
+        (0..val.len()).filter_map(|i| val.record(i).force_label().map(|w| w.force_magnitude_n())).collect();
+    assert_eq!(head.images, labelled.len());
+    let mean = labelled.iter().sum::<f64>() / labelled.len() as f64;
+    assert!((head.mean_n - mean).abs() <= 1e-4 * mean, "{head:?} against a mean of {mean} N");
+    assert!(head.total_n.is_finite() && head.total_n <= head.vector_n + 1e-9, "{head:?}");
+    assert!(on(&untrained).head_force.is_none(), "no head, no head figures");
     assert_eq!(h.last().unwrap().val_pressure_l1_kpa, Some(after));
     eprintln!("pressure L1: untrained {before} kPa, trained {after} kPa, zeros {zeros} kPa");
     // Three epochs of the tiny network lower the training loss, whose force terms dominate at
@@ -90,7 +103,7 @@ fn the_pressure_output_trains_beside_depth_and_travels_in_the_bundle() {
     let bundle = tmp.path().join("bundle");
     train::export::export_net(&fitted.net, &fitted.state, &bundle, &[]).unwrap();
     let (loaded, file) = model::bundle::load_bundle(&bundle, &device).unwrap();
-    assert!(file.model.pressure && loaded.has_pressure());
+    assert!(file.model.pressure && loaded.has_pressure() && loaded.has_force_head());
     // The bundle also records the unit's elastomer, fitted to the labels: the generator's own
     // material (unit 3), whose E* the labels were solved with.
     let e = file.elastomer.expect("an elastomer fitted to the force labels");
@@ -103,7 +116,7 @@ fn the_pressure_output_trains_beside_depth_and_travels_in_the_bundle() {
     let depth_only = tiny().init(&device);
     let start = Start { model_config: tiny(), weights: Some(depth_only.clone()) };
     let tuned = fit(&tmp.path().join("tune"), &config(&data, 1, 1.0), start, &device, false).unwrap();
-    assert!(tuned.net.has_pressure() && tuned.state.model.pressure);
+    assert!(tuned.net.has_pressure() && tuned.state.model.pressure && tuned.net.has_force_head());
     assert!(tuned.state.history[0].val_pressure_l1_kpa.is_some());
 }
 

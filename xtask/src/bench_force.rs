@@ -149,9 +149,10 @@ fn row(
     Ok(())
 }
 
-/// Both of a bundle's routes to force on `data`'s test frames, in one run: the network's
-/// pressure output and the contact solved on the predicted depth with the elastomer fitted to
-/// the train split's labels (the bundle's own record, or fitted here for an older bundle).
+/// A bundle's routes to force on `data`'s test frames, in one run: the network's pressure
+/// output, the contact solved on the predicted depth with the elastomer fitted to the train
+/// split's labels (the bundle's own record, or fitted here for an older bundle), and the
+/// network's force head.
 fn from_depth(bundle: &std::path::Path, data: &std::path::Path) -> Result<()> {
     use formats::Split;
     use formats::dataset::Manifest;
@@ -165,26 +166,36 @@ fn from_depth(bundle: &std::path::Path, data: &std::path::Path) -> Result<()> {
     };
     println!("{}", train::elastomer::report_line(&elastomer));
     predictor.set_elastomer(Some(elastomer))?;
-    let has_head = predictor.file.model.pressure;
-    let (mut truth_n, mut head, mut solved, mut ms, mut ms_off) = (vec![], vec![], vec![], vec![], vec![]);
+    let has_pressure = predictor.file.model.pressure;
+    let has_head = predictor.file.model.force_head.is_some();
+    let mut truth_n = vec![];
+    let (mut pressure, mut solved, mut head, mut ms, mut ms_off) = (vec![], vec![], vec![], vec![], vec![]);
     for s in manifest.split(Some(Split::Test)) {
         let Some(w) = s.force_label() else { continue };
         let frame = predictor.read_frame(&data.join(s.image.as_ref().context("a sample without an image")?))?;
-        predictor.solve_force = true;
-        let t = Instant::now();
-        let p = predictor.predict_all(&frame)?;
-        ms.push(t.elapsed().as_secs_f64() * 1e3);
         truth_n.push(w.force_magnitude_n());
         let errors = |f: &infer::predictor::Force| {
             [(f.wrench.force_magnitude_n() - w.force_magnitude_n()).abs(), f.wrench.force_distance_n(w)]
         };
-        solved.push(errors(p.force.as_ref().context("no solved force")?));
-        predictor.solve_force = false;
+        // As `infer` runs by default (the solve, and the head where there is one), timed.
+        (predictor.solve_force, predictor.head_force) = (true, true);
+        let t = Instant::now();
+        let p = predictor.predict_all(&frame)?;
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+        let p = p.force.as_ref().context("no force")?;
+        if has_head {
+            head.push(errors(p));
+            predictor.head_force = false;
+            solved.push(errors(predictor.predict_all(&frame)?.force.as_ref().context("no solved force")?));
+        } else {
+            solved.push(errors(p));
+        }
+        (predictor.solve_force, predictor.head_force) = (false, false);
         let t = Instant::now();
         let p = predictor.predict_all(&frame)?;
         ms_off.push(t.elapsed().as_secs_f64() * 1e3);
-        if has_head {
-            head.push(errors(p.force.as_ref().context("no force output")?));
+        if has_pressure {
+            pressure.push(errors(p.force.as_ref().context("no force output")?));
         }
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
@@ -192,15 +203,18 @@ fn from_depth(bundle: &std::path::Path, data: &std::path::Path) -> Result<()> {
     println!("{} test frames with force labels, mean |F| {m:.3} N", truth_n.len());
     println!("| force from | total force error (N) | % of mean | force vector error (N) |");
     println!("|---|---:|---:|---:|");
-    for (name, v) in [("the network's pressure output", &head), ("the contact solved on the predicted depth", &solved)]
-    {
+    for (name, v) in [
+        ("the network's pressure output", &pressure),
+        ("the contact solved on the predicted depth", &solved),
+        ("the network's force head", &head),
+    ] {
         if v.is_empty() {
             continue;
         }
         let (total, vector): (Vec<f64>, Vec<f64>) = v.iter().map(|e| (e[0], e[1])).unzip();
         println!("| {name} | {:.3} | {:.2} | {:.3} |", mean(&total), 100.0 * mean(&total) / m, mean(&vector));
     }
-    for (name, v) in [("with the solve", ms), ("without it", ms_off)] {
+    for (name, v) in [("with the solve (and the head)", ms), ("without them", ms_off)] {
         let t = Summary::of(v);
         println!("predict_all {name}, ms per test frame: median {:.2} [{:.2}, {:.2}]", t.median, t.q1, t.q3);
     }

@@ -43,8 +43,9 @@ pub struct Args {
     /// Weight of the training loss's extra L1 term over contact pixels (0: DenseDepth's loss).
     #[arg(long, default_value_t = 5.0)]
     contact_weight: f64,
-    /// Weight of the pressure output's term (0: no pressure output); the reported force is the
-    /// contact solved on the predicted depth either way.
+    /// Weight of the force outputs' terms (0: depth alone, the reported force then the contact
+    /// solved on the predicted depth; above 0 the network gains the pressure output and the
+    /// force head, whose force is reported).
     #[arg(long, default_value_t = train::FitConfig::DEFAULT_FORCE_WEIGHT)]
     force_weight: f64,
     /// Training seeds: the first trains the bundle the examples come from; each further one
@@ -135,7 +136,8 @@ pub fn run(args: Args) -> Result<()> {
     }
 
     check_outputs(out)?;
-    print_summary(&stats, &scene_lines, frame_ms, &fitted.state, started.elapsed().as_secs_f64(), out);
+    let force_source = predictor.force_source().unwrap_or("none");
+    print_summary(&stats, &scene_lines, frame_ms, &fitted.state, started.elapsed().as_secs_f64(), out, force_source);
     print_seed_spread(&test_stats);
     println!("{untouched}");
     Ok(())
@@ -377,6 +379,7 @@ fn print_summary(
     state: &train::checkpoint::RunState,
     seconds: f64,
     out: &Path,
+    force_source: &str,
 ) {
     println!("\nscenes (contact statistics, so the errors can be read against them):");
     for line in scene_lines {
@@ -415,10 +418,7 @@ fn print_summary(
         );
     }
     if stats.values().any(|s| s.force.is_some()) {
-        println!(
-            "\ncontact force (the contact solved on the predicted depth with the elastomer fitted to the train \
-             labels; truth: the labels' elastic contact, N):"
-        );
+        println!("\ncontact force (from {force_source}; truth: the labels' elastic contact, N):");
         println!(
             "| split | images | mean force | total force error | % of mean | force vector error | pressure L1 (kPa) |"
         );

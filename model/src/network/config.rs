@@ -165,6 +165,8 @@ pub enum ConfigError {
     EncoderSizes { growth_rate: usize, block_config: [usize; 4], num_init_features: usize, bn_size: usize },
     #[error("decoder_width {width} leaves the decoder without channels (widths {channels:?}); it must be in (0, 4]")]
     DecoderWidth { width: f64, channels: [usize; 5] },
+    #[error("force_head {hidden}: the force head's width must be in 1..=4096")]
+    ForceHead { hidden: usize },
 }
 
 /// DenseDepth: the DenseNet encoder and a decoder of four upsample-concat-conv-conv blocks.
@@ -187,6 +189,10 @@ pub struct DenseDepthConfig {
     /// (`train fit --force-weight`). Configurations written before this field have none.
     #[config(default = false)]
     pub pressure: bool,
+    /// A force head of this hidden width on the encoder's last features (`ForceHead`): the
+    /// contact's total force as three numbers, trained beside depth on the labels' force
+    /// (`train fit --force-weight`). `None` (and configurations written before this field): none.
+    pub force_head: Option<usize>,
 }
 
 impl DenseDepthConfig {
@@ -239,6 +245,9 @@ impl DenseDepthConfig {
         if !(self.decoder_width > 0.0 && self.decoder_width <= 4.0) || self.decoder_channels()[4] == 0 {
             return Err(ConfigError::DecoderWidth { width: self.decoder_width, channels: self.decoder_channels() });
         }
+        if let Some(hidden) = self.force_head.filter(|&h| !within(h, 4096)) {
+            return Err(ConfigError::ForceHead { hidden });
+        }
         Ok(())
     }
 }
@@ -268,5 +277,19 @@ mod tests {
         assert!(absurd.check().unwrap_err().to_string().contains("growth_rate"));
         absurd = DenseDepthConfig::new(DenseNetConfig::tiny()).with_decoder_width(0.001);
         assert!(absurd.check().unwrap_err().to_string().contains("decoder_width"));
+        absurd = DenseDepthConfig::new(DenseNetConfig::tiny()).with_force_head(Some(1 << 40));
+        assert!(absurd.check().unwrap_err().to_string().contains("force_head"));
+    }
+
+    /// A configuration written before the force head reads as one without it, and one with it
+    /// reads back as it was written.
+    #[test]
+    fn the_force_head_is_optional_in_configuration_files() {
+        let with = DenseDepthConfig::new(DenseNetConfig::tiny()).with_pressure(true).with_force_head(Some(64));
+        let mut json = serde_json::to_value(&with).unwrap();
+        assert_eq!(serde_json::from_value::<DenseDepthConfig>(json.clone()).unwrap(), with);
+        json.as_object_mut().unwrap().remove("force_head");
+        let old: DenseDepthConfig = serde_json::from_value(json).unwrap();
+        assert_eq!(old, with.with_force_head(None));
     }
 }

@@ -1,7 +1,8 @@
 //! DenseDepth's decoder: a 1x1 bottleneck convolution, four upsample-concat-conv-conv blocks
 //! with LeakyReLU(0.2), and a 3x3 convolution to one channel at half the input resolution; or,
 //! with a fifth block whose skip is the input itself, at the input's resolution. A network with
-//! a pressure output reads the same last features with a second 3x3 convolution.
+//! a pressure output reads the same last features with a second 3x3 convolution; one with a
+//! force head reads the encoder's last features (`ForceHead`).
 
 use burn::module::Module;
 use burn::nn::PaddingConfig2d;
@@ -10,10 +11,9 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
 use super::densenet::Skips;
+use super::force_head::ForceHead;
 use super::upsample::{Upsample, upsample_concat};
-use super::{Activation, conv2d, conv2d_act};
-
-const SLOPE: f64 = 0.2;
+use super::{Activation, LEAKY_SLOPE, conv2d, conv2d_act};
 
 pub(crate) fn conv3(channels: [usize; 2], device: &Device) -> Conv2d {
     Conv2dConfig::new(channels, [3, 3]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device)
@@ -33,8 +33,8 @@ impl UpBlock {
 
     pub fn forward(&self, x: Tensor<4>, skip: Tensor<4>, mode: Upsample) -> Tensor<4> {
         let x = upsample_concat(x, skip, mode);
-        let x = conv2d_act(&self.conv_a, x, Activation::Leaky(SLOPE));
-        conv2d_act(&self.conv_b, x, Activation::Leaky(SLOPE))
+        let x = conv2d_act(&self.conv_a, x, Activation::Leaky(LEAKY_SLOPE));
+        conv2d_act(&self.conv_b, x, Activation::Leaky(LEAKY_SLOPE))
     }
 }
 
@@ -48,6 +48,9 @@ pub struct Heads {
     /// features detached from the graph: a loss term on it trains the pressure convolution and
     /// leaves the features, which depth shares, to the other terms.
     pub pressure_head_only: Option<Tensor<4>>,
+    /// The contact force (`[N, 3]`, x, y, z in [`crate::FORCE_N_PER_LOSS_UNIT`]s, sensor frame),
+    /// where the network has the force head.
+    pub force: Option<Tensor<2>>,
 }
 
 #[derive(Module, Debug)]
@@ -62,6 +65,8 @@ pub struct Decoder {
     pub conv3: Conv2d,
     /// The contact pressure's channel (`DenseDepthConfig::pressure`), beside `conv3`.
     pub pressure: Option<Conv2d>,
+    /// The force head (`DenseDepthConfig::force_head`), on the encoder's last features.
+    pub force: Option<ForceHead>,
 }
 
 impl Decoder {
@@ -74,6 +79,7 @@ impl Decoder {
         widths: [usize; 5],
         full_input: Option<usize>,
         pressure: bool,
+        force_head: Option<usize>,
         device: &Device,
     ) -> Self {
         let [n, n2, n4, n8, n16] = widths;
@@ -86,6 +92,7 @@ impl Decoder {
             up4: UpBlock::new(n8 + skips[0], n16, device),
             conv3: conv3([n16, 1], device),
             pressure: pressure.then(|| conv3([n16, 1], device)),
+            force: force_head.map(|hidden| ForceHead::new(bottleneck, hidden, device)),
         }
     }
 
@@ -103,7 +110,9 @@ impl Decoder {
         mode: Upsample,
         mark: &mut dyn FnMut(&'static str),
     ) -> Heads {
-        let x = conv2d(&self.conv2, relu(s.norm5));
+        let features = relu(s.norm5);
+        let force = self.force.as_ref().map(|head| head.forward(features.clone()));
+        let x = conv2d(&self.conv2, features);
         mark("decoder.conv2");
         let x = self.up1.forward(x, s.transition2, mode);
         mark("decoder.up1");
@@ -130,6 +139,6 @@ impl Decoder {
         };
         let depth = conv2d(&self.conv3, x);
         mark("decoder.heads");
-        Heads { depth, pressure, pressure_head_only }
+        Heads { depth, pressure, pressure_head_only, force }
     }
 }

@@ -28,6 +28,7 @@ impl DenseDepthConfig {
                 self.decoder_channels(),
                 self.full_resolution.then_some(self.input.count()),
                 self.pressure,
+                self.force_head,
                 device,
             ),
         }
@@ -59,6 +60,21 @@ impl DenseDepth {
         if self.decoder.pressure.is_none() {
             let features = self.decoder.conv3.weight.dims()[1];
             self.decoder.pressure = Some(super::decoder::conv3([features, 1], device));
+        }
+        self
+    }
+
+    /// Whether this network has the force head.
+    pub fn has_force_head(&self) -> bool {
+        self.decoder.force.is_some()
+    }
+
+    /// This network with a force head of `hidden` width, freshly initialised from `device`'s
+    /// generator where it has none: a network trained without one fine-tuned into one with it.
+    pub fn with_force_head(mut self, hidden: usize, device: &Device) -> Self {
+        if self.decoder.force.is_none() {
+            let features = self.decoder.conv2.weight.dims()[1];
+            self.decoder.force = Some(super::ForceHead::new(features, hidden, device));
         }
         self
     }

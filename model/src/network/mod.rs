@@ -5,15 +5,20 @@ mod config;
 mod decoder;
 mod densedepth;
 mod densenet;
+mod force_head;
 mod upsample;
 
 pub use config::{ConfigError, DenseDepthConfig, DenseNetConfig, Preset};
 pub use decoder::{Decoder, Heads, UpBlock};
 pub use densedepth::DenseDepth;
 pub use densenet::{DenseBlock, DenseLayer, DenseNetEncoder, Skips, Transition, fold_batch_norm};
+pub use force_head::ForceHead;
 pub use upsample::{Upsample, interpolation_matrix, upsample_bilinear, upsample_mode_for};
 
 pub use crate::kernels::Activation;
+
+/// DenseDepth's LeakyReLU slope, the decoder's and the force head's.
+pub(crate) const LEAKY_SLOPE: f64 = 0.2;
 
 /// `activation(conv.forward(x))`.
 pub(crate) fn conv2d_act(

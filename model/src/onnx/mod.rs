@@ -8,7 +8,8 @@
 //! all free (`batch`, `height`, `width`); the bundle's input size is in the metadata.
 //! Input `input` [batch, C, H, W]: the bundle's input encoding (RGB / 255, then the reference
 //! difference if the model reads it). Output `depth` [batch, 1, h, w]: network depth units,
-//! turned into millimetres by the metadata's `depth_scale`.
+//! turned into millimetres by the metadata's `depth_scale`; with the pressure output,
+//! `pressure` beside it; with the force head, `force` [batch, 3] in N (sensor frame).
 
 mod proto;
 mod whole;
@@ -32,6 +33,16 @@ pub const OUTPUT: &str = "depth";
 /// The second output's name, where the network has the pressure output (network units:
 /// `densetact.pressure_kpa_per_unit` kPa each).
 pub const PRESSURE_OUTPUT: &str = "pressure";
+/// The force head's output, where the network has one: `[batch, 3]`, N, sensor frame.
+pub const FORCE_OUTPUT: &str = "force";
+
+/// The network's outputs' value names.
+struct NetOutputs {
+    depth: String,
+    pressure: Option<String>,
+    /// The force head's, in N.
+    force: Option<String>,
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum OnnxError {
@@ -45,7 +56,7 @@ pub enum OnnxError {
 pub fn export(net: &DenseDepth, file: &BundleFile) -> Result<Vec<u8>, OnnxError> {
     let net = net.clone().folded();
     let mut g = Graph::default();
-    let (depth, pressure) = g.densedepth(&net, INPUT)?;
+    let NetOutputs { depth, pressure, force } = g.densedepth(&net, INPUT)?;
     let channels = net.encoder.conv0.weight.dims()[1] as i64;
     let free = |name: &str| Dimension { value: Some(DimensionValue::DimParam(name.into())) };
     let fixed = |n: i64| Dimension { value: Some(DimensionValue::DimValue(n)) };
@@ -62,6 +73,10 @@ pub fn export(net: &DenseDepth, file: &BundleFile) -> Result<Vec<u8>, OnnxError>
     if let Some(p) = &pressure {
         g.rename_output(p, PRESSURE_OUTPUT);
         output.push(value(PRESSURE_OUTPUT, out_dims(oh, ow)));
+    }
+    if let Some(f) = &force {
+        g.rename_output(f, FORCE_OUTPUT);
+        output.push(value(FORCE_OUTPUT, vec![free("batch"), fixed(3)]));
     }
     let graph = GraphProto {
         node: g.nodes,
@@ -277,8 +292,29 @@ impl Graph {
         Ok(self.node("LeakyRelu", &format!("{name}.conv_b.leaky"), &[&y], vec![attr_float("alpha", 0.2)]))
     }
 
-    /// The depth output's name, and the pressure output's where the network has one.
-    fn densedepth(&mut self, net: &DenseDepth, input: &str) -> Result<(String, Option<String>), OnnxError> {
+    /// The force head (`crate::ForceHead`) on relu(norm5): `[batch, 3]`, N.
+    fn force_head(&mut self, head: &crate::ForceHead, features: &str) -> Result<String, OnnxError> {
+        let y = self.conv("decoder.force.conv", &head.conv, features)?;
+        let y = self.node("LeakyRelu", "decoder.force.leaky", &[&y], vec![attr_float("alpha", 0.2)]);
+        // Opset 17's ReduceMean takes its axes as an attribute.
+        let attrs = vec![attr_ints("axes", &[2, 3]), attr_int("keepdims", 0)];
+        let pooled = self.node("ReduceMean", "decoder.force.mean", &[&y], attrs);
+        // Burn's Linear holds [in, out]: x W + b.
+        let w = self.weight("decoder.force.linear.weight", head.linear.weight.val());
+        let y = self.node("MatMul", "decoder.force.linear", &[&pooled, &w], vec![]);
+        let y = match &head.linear.bias {
+            Some(b) => {
+                let b = self.weight("decoder.force.linear.bias", b.val());
+                self.node("Add", "decoder.force.linear.bias_add", &[&y, &b], vec![])
+            }
+            None => y,
+        };
+        let unit = self.scalar("decoder.force.n_per_unit", crate::FORCE_N_PER_LOSS_UNIT);
+        Ok(self.node("Mul", "decoder.force.n", &[&y, &unit], vec![]))
+    }
+
+    /// The depth output's name, and the pressure's and the force head's where the network has them.
+    fn densedepth(&mut self, net: &DenseDepth, input: &str) -> Result<NetOutputs, OnnxError> {
         let e = &net.encoder;
         let y = self.conv("encoder.conv0", &e.conv0, input)?;
         let relu0 = match &e.norm0 {
@@ -307,6 +343,10 @@ impl Graph {
         let norm5 = self.norm_relu("encoder.norm5", &e.norm5, &y);
 
         let d = &net.decoder;
+        let force = match &d.force {
+            Some(head) => Some(self.force_head(head, &norm5)?),
+            None => None,
+        };
         let x = self.conv("decoder.conv2", &d.conv2, &norm5)?;
         let x = self.up_block("decoder.up1", &d.up1, &x, &t2)?;
         let x = self.up_block("decoder.up2", &d.up2, &x, &t1)?;
@@ -320,7 +360,7 @@ impl Graph {
             Some(conv) => Some(self.conv("decoder.pressure", conv, &x)?),
             None => None,
         };
-        Ok((self.conv("decoder.conv3", &d.conv3, &x)?, pressure))
+        Ok(NetOutputs { depth: self.conv("decoder.conv3", &d.conv3, &x)?, pressure, force })
     }
 }
 

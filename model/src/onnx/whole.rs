@@ -11,7 +11,8 @@
 //! the tare (the network's depth on the reference, a constant), the extrapolation over the
 //! untrained border (`FillPlan`'s rings as gathers), the upsampling to the crop (two matrix
 //! products), the clamp and the useful-disk mask; with the pressure output, the pressure (kPa)
-//! kept where the depth shows contact, and its resultant force.
+//! kept where the depth shows contact, and its resultant force; with the force head, the head's
+//! force (tared, zero without contact) and the pressure scaled to it.
 
 use burn::tensor::{Tensor, TensorData};
 use image::RgbImage;
@@ -31,7 +32,8 @@ pub const DEPTH_MM: &str = "depth_mm";
 /// Whether the contact gate let the network run (bool scalar).
 pub const CONTACT: &str = "contact";
 /// With the pressure output: pressure (kPa) on the crop, and its resultant force (N, sensor
-/// frame, `[3]`).
+/// frame, `[3]`); with the force head, the head's force and the pressure scaled to its size
+/// (the head's force alone where the network has no pressure output).
 pub const PRESSURE_KPA: &str = "pressure_kpa";
 pub const FORCE_N: &str = "force_n";
 
@@ -86,7 +88,7 @@ pub fn export_whole(p: &WholePredictor) -> Result<Vec<u8>, OnnxError> {
     let outer = std::mem::take(&mut g.nodes);
     let outer_constants = g.initializers.len();
     let input = g.encode(&planes, &encoder, s);
-    let (depth, pressure) = g.densedepth(&net, &input)?;
+    let super::NetOutputs { depth, pressure, force: head } = g.densedepth(&net, &input)?;
     let out_hw = file.model.output_hw(hw);
     let trained = sensor::resample::covered_mask(&mask, s, out_hw);
     let fill = sensor::resample::FillPlan::new(&trained, out_hw);
@@ -102,7 +104,7 @@ pub fn export_whole(p: &WholePredictor) -> Result<Vec<u8>, OnnxError> {
         let d = g.node("Mul", "whole.depth.times_max", &[&d, &max], vec![]);
         g.node("Div", "whole.depth.mm", &[&d, &range], vec![])
     };
-    let depth = g.on_crop("whole.depth", &mm, tare.as_ref().map(|t| t.0.as_slice()), &fill, out_hw, s);
+    let depth = g.on_crop("whole.depth", &mm, tare.as_ref().map(|t| t.mm.as_slice()), &fill, out_hw, s);
     let depth = {
         let max = file.sensor.max_depth_mm as f32;
         let zero = g.scalar("whole.zero", 0.0);
@@ -112,17 +114,24 @@ pub fn export_whole(p: &WholePredictor) -> Result<Vec<u8>, OnnxError> {
         g.node("Where", "whole.depth.masked", &[&mask, &clamped, &zero], vec![])
     };
     let mut outputs = vec![(depth, DEPTH_MM, vec![s as i64, s as i64])];
+    let head = head.map(|h| g.head_force(&h, &outputs[0].0, tare.as_ref().and_then(|t| t.force_n)));
     if let Some(pressure) = pressure {
         let [oh, ow] = out_hw.map(|v| v as i64);
         let p = g.reshape("whole.pressure.plane", &pressure, &[oh, ow]);
         let per = crate::PRESSURE_KPA_PER_UNIT;
         let per = g.scalar("whole.pressure.per_unit", per);
         let kpa = g.node("Mul", "whole.pressure.kpa", &[&p, &per], vec![]);
-        let tare_kpa = tare.as_ref().and_then(|t| t.1.as_deref());
+        let tare_kpa = tare.as_ref().and_then(|t| t.kpa.as_deref());
         let kpa = g.on_crop("whole.pressure", &kpa, tare_kpa, &fill, out_hw, s);
         let (pressure, force) = g.force(&outputs[0].0, &kpa, file, s);
+        let (pressure, force) = match &head {
+            Some(head) => (g.scaled_to(&pressure, &force, head), head.clone()),
+            None => (pressure, force),
+        };
         outputs.push((pressure, PRESSURE_KPA, vec![s as i64, s as i64]));
         outputs.push((force, FORCE_N, vec![3]));
+    } else if let Some(head) = head {
+        outputs.push((head, FORCE_N, vec![3]));
     }
     let branch = std::mem::replace(&mut g.nodes, outer);
     let branch_constants = g.initializers.split_off(outer_constants);
@@ -191,14 +200,17 @@ pub fn export_whole(p: &WholePredictor) -> Result<Vec<u8>, OnnxError> {
     Ok(super::model_bytes(graph, doc, super::metadata(file, net.decoder.pressure.is_some(), true)))
 }
 
-/// The network's depth (mm) and pressure (kPa) on the reference frame, output grid: what
-/// `infer` subtracts from every prediction.
-fn tare(
-    net: &DenseDepth,
-    file: &BundleFile,
-    encoder: &InputEncoder,
-    reference: &RgbImage,
-) -> (Vec<f32>, Option<Vec<f32>>) {
+/// The network's outputs on the reference frame: what `infer` subtracts from every prediction.
+struct Tare {
+    /// Depth (mm), output grid.
+    mm: Vec<f32>,
+    /// Pressure (kPa), output grid, with the pressure output.
+    kpa: Option<Vec<f32>>,
+    /// The force head's force (N), with the head.
+    force_n: Option<[f32; 3]>,
+}
+
+fn tare(net: &DenseDepth, file: &BundleFile, encoder: &InputEncoder, reference: &RgbImage) -> Tare {
     let device = net.encoder.conv0.weight.val().device();
     let [h, w] = encoder.hw();
     let c = encoder.channels().count();
@@ -207,7 +219,11 @@ fn tare(
     let values = |t: Tensor<4>| t.into_data().convert::<f32>().try_into_vec::<f32>().expect("f32 output");
     let mm = values(heads.depth).into_iter().map(|v| file.depth_scale.to_mm(v)).collect();
     let kpa = heads.pressure.map(|p| values(p).into_iter().map(|v| v * crate::PRESSURE_KPA_PER_UNIT).collect());
-    (mm, kpa)
+    let force_n = heads.force.map(|f| {
+        let v = f.into_data().convert::<f32>().try_into_vec::<f32>().expect("f32 output");
+        std::array::from_fn(|k| v[k] * crate::FORCE_N_PER_LOSS_UNIT)
+    });
+    Tare { mm, kpa, force_n }
 }
 
 fn typed_info(name: &str, elem_type: i32, dims: &[i64]) -> ValueInfoProto {
@@ -251,7 +267,7 @@ impl Graph {
         self.tensor(name, dims, BOOL, values.iter().map(|&b| u8::from(b)).collect())
     }
 
-    fn scalar(&mut self, name: &str, v: f32) -> String {
+    pub(super) fn scalar(&mut self, name: &str, v: f32) -> String {
         self.floats(name, &[], &[v])
     }
 
@@ -599,6 +615,36 @@ impl Graph {
         let force = self.node("MatMul", "whole.force.sum", &[&flat, &per_kpa], vec![]);
         let force = self.reshape("whole.force", &force, &[3]);
         (pressure, force)
+    }
+
+    /// The force head's force (`[1, 3]`, N) as `infer` reports it: less its reading of the
+    /// reference frame (`tare_n`), and zero where the depth shows no contact.
+    fn head_force(&mut self, head: &str, depth: &str, tare_n: Option<[f32; 3]>) -> String {
+        let f = self.reshape("whole.head.force", head, &[3]);
+        let f = match tare_n {
+            Some(t) => {
+                let t = self.floats("whole.head.tare_n", &[3], &t);
+                self.node("Sub", "whole.head.tared", &[&f, &t], vec![])
+            }
+            None => f,
+        };
+        let threshold = self.scalar("whole.contact_threshold_mm", sensor::CONTACT_THRESHOLD_MM);
+        let touched = self.node("Greater", "whole.head.touched", &[depth, &threshold], vec![]);
+        let touched = self.node("Cast", "whole.head.touched_float", &[&touched], vec![attr_int("to", FLOAT as i64)]);
+        let any = self.node("ReduceMax", "whole.head.any_contact", &[&touched], vec![attr_int("keepdims", 0)]);
+        self.node("Mul", "whole.head.force_n", &[&f, &any], vec![])
+    }
+
+    /// `pressure` scaled so that its resultant's size is `head`'s: the map's shape, the head's
+    /// total (`infer`'s `Force::with_total`).
+    fn scaled_to(&mut self, pressure: &str, resultant: &str, head: &str) -> String {
+        let keep = vec![attr_int("keepdims", 0)];
+        let map_n = self.node("ReduceL2", "whole.head.map_n", &[resultant], keep.clone());
+        let head_n = self.node("ReduceL2", "whole.head.head_n", &[head], keep);
+        let tiny = self.scalar("whole.head.tiny_n", f32::MIN_POSITIVE);
+        let map_n = self.node("Max", "whole.head.map_n_floor", &[&map_n, &tiny], vec![]);
+        let ratio = self.node("Div", "whole.head.ratio", &[&head_n, &map_n], vec![]);
+        self.node("Mul", "whole.head.pressure_kpa", &[pressure, &ratio], vec![])
     }
 }
 
