@@ -40,12 +40,18 @@ pub struct Force {
 }
 
 impl Force {
+    /// No pressure on a crop of `size_px`, and no wrench.
+    fn zero(size_px: u32) -> Force {
+        let pixels = size_px as usize * size_px as usize;
+        Force { pressure: PressureMap { size_px, pressure_kpa: vec![0.0; pixels] }, wrench: Wrench::default() }
+    }
+
     /// This pressure map scaled so that its resultant's size is that of `force_n` (N, sensor
     /// frame), which becomes the wrench's force: the map's shape, another estimate's total. The
     /// torque scales with the map. A map without pressure stays zero.
     pub fn scaled_to(mut self, force_n: [f64; 3]) -> Force {
-        let size = |v: [f64; 3]| v.iter().map(|c| c * c).sum::<f64>().sqrt();
-        let scale = size(force_n) / self.wrench.force_magnitude_n().max(f64::from(f32::MIN_POSITIVE));
+        let size = Wrench { force_n, ..Wrench::default() }.force_magnitude_n();
+        let scale = size / self.wrench.force_magnitude_n().max(f64::from(f32::MIN_POSITIVE));
         self.pressure.pressure_kpa.iter_mut().for_each(|p| *p = (*p as f64 * scale) as f32);
         self.wrench.torque_nmm = self.wrench.torque_nmm.map(|t| t * scale);
         self.wrench.force_n = force_n;
@@ -377,10 +383,7 @@ impl Predictor {
     /// pressure and wrench.
     fn untouched(&self) -> Prediction {
         let depth = DepthMap::zeros(self.file.sensor.crop_size_px);
-        let force = self.has_force().then(|| Force {
-            pressure: PressureMap { size_px: depth.size_px, pressure_kpa: vec![0.0; depth.depth_mm.len()] },
-            wrench: Wrench::default(),
-        });
+        let force = self.has_force().then(|| Force::zero(depth.size_px));
         Prediction { depth, force, network_ran: false }
     }
 
@@ -430,11 +433,7 @@ impl Predictor {
         let contact = depth.depth_mm.iter().any(|&d| d > sensor::CONTACT_THRESHOLD_MM);
         let tare = self.tare_force_n.unwrap_or_default();
         let force_n: [f64; 3] = std::array::from_fn(|k| if contact { head_n[k] - tare[k] as f64 } else { 0.0 });
-        let map = map.unwrap_or_else(|| Force {
-            pressure: PressureMap { size_px: depth.size_px, pressure_kpa: vec![0.0; depth.depth_mm.len()] },
-            wrench: Wrench::default(),
-        });
-        map.scaled_to(force_n)
+        map.unwrap_or_else(|| Force::zero(depth.size_px)).scaled_to(force_n)
     }
 
     /// The pressure output (network units) to pressure maps (kPa) on the crop's grid, each
@@ -552,13 +551,13 @@ impl Predictor {
     }
 }
 
-/// The pressure output (network units) in kPa, planes one after another.
 /// The force head's output (`[N, 3]`, loss units) in N, one force per image.
 fn output_n(out: Tensor<2>) -> Vec<[f64; 3]> {
     let values: Vec<f32> = out.into_data().convert::<f32>().try_into_vec::<f32>().expect("f32 output");
     values.chunks(3).map(|v| std::array::from_fn(|k| (v[k] * model::FORCE_N_PER_LOSS_UNIT) as f64)).collect()
 }
 
+/// The pressure output (network units) in kPa, planes one after another.
 fn output_kpa(out: Tensor<4>) -> Vec<f32> {
     let values: Vec<f32> = out.into_data().try_to_vec::<f32>().expect("f32 output");
     values.into_iter().map(|v| v * model::PRESSURE_KPA_PER_UNIT).collect()

@@ -509,13 +509,13 @@ impl HeadForceErrors {
         let pred = head.into_data().convert::<f32>().try_into_vec::<f32>()?;
         let truth = f.force_n.clone().into_data().try_into_vec::<f32>()?;
         let has = f.has.clone().into_data().try_into_vec::<f32>()?;
-        let length = |v: [f64; 3]| v.iter().map(|c| c * c).sum::<f64>().sqrt();
+        let wrench = |force_n| sensor::Wrench { force_n, ..Default::default() };
         for (i, _) in has.iter().enumerate().filter(|(_, h)| **h > 0.0) {
-            let p: [f64; 3] = std::array::from_fn(|k| (pred[3 * i + k] * model::FORCE_N_PER_LOSS_UNIT) as f64);
-            let t: [f64; 3] = std::array::from_fn(|k| truth[3 * i + k] as f64);
-            self.total_n += (length(p) - length(t)).abs();
-            self.vector_n += length(std::array::from_fn(|k| p[k] - t[k]));
-            self.mean_n += length(t);
+            let p = wrench(std::array::from_fn(|k| (pred[3 * i + k] * model::FORCE_N_PER_LOSS_UNIT) as f64));
+            let t = wrench(std::array::from_fn(|k| truth[3 * i + k] as f64));
+            self.total_n += (p.force_magnitude_n() - t.force_magnitude_n()).abs();
+            self.vector_n += p.force_distance_n(&t);
+            self.mean_n += t.force_magnitude_n();
             self.images += 1;
         }
         Ok(())

@@ -22,7 +22,7 @@ use burn::tensor::Tensor;
 use prost::Message;
 
 use crate::bundle::BundleFile;
-use crate::network::{DenseBlock, DenseDepth, Transition, UpBlock};
+use crate::network::{DenseBlock, DenseDepth, LEAKY_SLOPE, Transition, UpBlock};
 use proto::*;
 
 /// The opset the graph is written for.
@@ -287,15 +287,25 @@ impl Graph {
         let up = self.node("Resize", &format!("{name}.resize"), &[x, "", "", &sizes], attrs);
         let y = self.concat(&format!("{name}.concat"), &[&up, skip]);
         let y = self.conv(&format!("{name}.conv_a"), &block.conv_a, &y)?;
-        let y = self.node("LeakyRelu", &format!("{name}.conv_a.leaky"), &[&y], vec![attr_float("alpha", 0.2)]);
+        let y = self.node(
+            "LeakyRelu",
+            &format!("{name}.conv_a.leaky"),
+            &[&y],
+            vec![attr_float("alpha", LEAKY_SLOPE as f32)],
+        );
         let y = self.conv(&format!("{name}.conv_b"), &block.conv_b, &y)?;
-        Ok(self.node("LeakyRelu", &format!("{name}.conv_b.leaky"), &[&y], vec![attr_float("alpha", 0.2)]))
+        Ok(self.node(
+            "LeakyRelu",
+            &format!("{name}.conv_b.leaky"),
+            &[&y],
+            vec![attr_float("alpha", LEAKY_SLOPE as f32)],
+        ))
     }
 
     /// The force head (`crate::ForceHead`) on relu(norm5): `[batch, 3]`, N.
     fn force_head(&mut self, head: &crate::ForceHead, features: &str) -> Result<String, OnnxError> {
         let y = self.conv("decoder.force.conv", &head.conv, features)?;
-        let y = self.node("LeakyRelu", "decoder.force.leaky", &[&y], vec![attr_float("alpha", 0.2)]);
+        let y = self.node("LeakyRelu", "decoder.force.leaky", &[&y], vec![attr_float("alpha", LEAKY_SLOPE as f32)]);
         // Opset 17's ReduceMean takes its axes as an attribute.
         let attrs = vec![attr_ints("axes", &[2, 3]), attr_int("keepdims", 0)];
         let pooled = self.node("ReduceMean", "decoder.force.mean", &[&y], attrs);

@@ -600,11 +600,21 @@ impl Graph {
         self.node("MatMul", &format!("{name}.on_crop"), &[&down, &rows], vec![])
     }
 
+    /// Where `depth` (the crop's, in mm) shows contact: the one comparison the pressure and the
+    /// force head both read, made once.
+    fn touched(&mut self, depth: &str) -> String {
+        const TOUCHED: &str = "whole.touched";
+        if !self.nodes.iter().any(|n| n.name == TOUCHED) {
+            let threshold = self.scalar("whole.contact_threshold_mm", sensor::CONTACT_THRESHOLD_MM);
+            self.node("Greater", TOUCHED, &[depth, &threshold], vec![]);
+        }
+        TOUCHED.into()
+    }
+
     /// Pressure kept where the depth shows contact (never negative), and its resultant force.
     fn force(&mut self, depth: &str, kpa: &str, file: &BundleFile, s: usize) -> (String, String) {
-        let threshold = self.scalar("whole.contact_threshold_mm", sensor::CONTACT_THRESHOLD_MM);
         let zero = self.scalar("whole.zero", 0.0);
-        let touched = self.node("Greater", "whole.pressure.touched", &[depth, &threshold], vec![]);
+        let touched = self.touched(depth);
         let pushing = self.node("Max", "whole.pressure.pushing", &[kpa, &zero], vec![]);
         let pressure = self.node("Where", "whole.pressure.kept", &[&touched, &pushing, &zero], vec![]);
         let n = (s * s) as i64;
@@ -628,15 +638,14 @@ impl Graph {
             }
             None => f,
         };
-        let threshold = self.scalar("whole.contact_threshold_mm", sensor::CONTACT_THRESHOLD_MM);
-        let touched = self.node("Greater", "whole.head.touched", &[depth, &threshold], vec![]);
+        let touched = self.touched(depth);
         let touched = self.node("Cast", "whole.head.touched_float", &[&touched], vec![attr_int("to", FLOAT as i64)]);
         let any = self.node("ReduceMax", "whole.head.any_contact", &[&touched], vec![attr_int("keepdims", 0)]);
         self.node("Mul", "whole.head.force_n", &[&f, &any], vec![])
     }
 
     /// `pressure` scaled so that its resultant's size is `head`'s: the map's shape, the head's
-    /// total (`infer`'s `Force::with_total`).
+    /// total (`infer`'s `Force::scaled_to`).
     fn scaled_to(&mut self, pressure: &str, resultant: &str, head: &str) -> String {
         let keep = vec![attr_int("keepdims", 0)];
         let map_n = self.node("ReduceL2", "whole.head.map_n", &[resultant], keep.clone());
