@@ -184,9 +184,9 @@ impl DepthLossConfig {
     /// `pressure_weight` times their masked L1, and, where the batch has force targets, the same
     /// weight times the mean |F_pred - F| (in [`FORCE_N_PER_LOSS_UNIT`]s) of the pressure's
     /// resultant: the per-pixel term alone left the force 28 % short on the quickstart's scenes
-    /// (an L1 fit keeps the peaks low). The resultant is taken of `heads.pressure_head_only`
-    /// where there is one, so that this term calibrates the pressure convolution without
-    /// pulling the features depth shares (it doubled the contact depth error when it could).
+    /// (an L1 fit keeps the peaks low). Both terms reach the pressure convolution alone: the
+    /// network cuts the pressure from the features depth shares (`crate::Heads::pressure`;
+    /// through them the resultant's term doubled the contact depth error, the map's cost 1.14x).
     /// A network with the force head adds the same weight times its output's mean |F_pred - F|
     /// (in the same units); that term does reach the encoder, through the head alone.
     pub fn forward_heads(
@@ -204,7 +204,7 @@ impl DepthLossConfig {
             loss.total = loss.total + mean.clone().mul_scalar(self.pressure_weight / FORCE_N_PER_LOSS_UNIT as f64);
             loss.head_force_l1_n = Some(mean);
         }
-        if let (Some(pred), Some(f)) = (heads.pressure_head_only.as_ref().or(heads.pressure.as_ref()), force) {
+        if let (Some(pred), Some(f)) = (heads.pressure.as_ref(), force) {
             let [n, _, h, w] = pred.dims();
             let pred = pred.clone().cast(DType::F32).reshape([n, 1, h * w]);
             let resultant = (f.per_unit.clone() * pred).sum_dim(2).reshape([n, 3]);
@@ -298,12 +298,7 @@ mod tests {
         let config = DepthLossConfig::new().with_pressure_weight(2.0);
         let ones = Tensor::<4>::ones([1, 1, 12, 12], &device);
         let depth_only = config.forward_masked(target.clone(), target.clone(), Some(ones.clone()));
-        let heads = |p: Option<Tensor<4>>| crate::Heads {
-            depth: target.clone(),
-            pressure: p,
-            pressure_head_only: None,
-            force: None,
-        };
+        let heads = |p: Option<Tensor<4>>| crate::Heads { depth: target.clone(), pressure: p, force: None };
         // Pressure off by 1 on the 16 patch pixels and 0.5 on two others; the mask keeps the
         // left half of the map (8 patch pixels and both others): (8 + 1) / 72.
         let mut m = vec![0f32; 144];
@@ -341,8 +336,7 @@ mod tests {
         let force = ForceTargets { per_unit, force_n, has };
         let depth2 = Tensor::cat(vec![target.clone(), target.clone()], 0);
         let ones2 = Tensor::cat(vec![ones.clone(), ones.clone()], 0);
-        let heads2 =
-            crate::Heads { depth: depth2.clone(), pressure: Some(pred2), pressure_head_only: None, force: None };
+        let heads2 = crate::Heads { depth: depth2.clone(), pressure: Some(pred2), force: None };
         let with = config.forward_heads(heads2, depth2.clone(), ones2.clone(), None, Some(force));
         assert!((scalar(with.force_l1_n.unwrap()) - 4.0).abs() < 1e-3);
         let base = scalar(config.forward_masked(depth2.clone(), depth2, Some(ones2)).total);
@@ -375,8 +369,7 @@ mod tests {
             force_n: Tensor::<2>::from_data(TensorData::new(vec![0f32, 0.0, -12.0, 7.0, 7.0, 7.0], [2, 3]), &device),
             has: Tensor::<2>::from_data(TensorData::new(vec![1f32, 0.0], [2, 1]), &device),
         };
-        let heads =
-            crate::Heads { depth: depth.clone(), pressure: None, pressure_head_only: None, force: Some(head.clone()) };
+        let heads = crate::Heads { depth: depth.clone(), pressure: None, force: Some(head.clone()) };
         let with = config.forward_heads(heads, depth.clone(), ones.clone(), None, Some(force));
         assert!((scalar(with.head_force_l1_n.clone().unwrap()) - 3.0).abs() < 1e-4);
         assert!(with.force_l1_n.is_none() && with.pressure_l1.is_none());

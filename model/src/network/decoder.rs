@@ -1,7 +1,8 @@
 //! DenseDepth's decoder: a 1x1 bottleneck convolution, four upsample-concat-conv-conv blocks
 //! with LeakyReLU(0.2), and a 3x3 convolution to one channel at half the input resolution; or,
 //! with a fifth block whose skip is the input itself, at the input's resolution. A network with
-//! a pressure output reads the same last features with a second 3x3 convolution; one with a
+//! a pressure output reads the same last features, cut from the graph, with a second 3x3
+//! convolution; one with a
 //! force head reads the encoder's last features (`ForceHead`).
 
 use burn::module::Module;
@@ -42,12 +43,10 @@ impl UpBlock {
 #[derive(Clone, Debug)]
 pub struct Heads {
     pub depth: Tensor<4>,
-    /// Contact pressure, where the network has the channel.
+    /// Contact pressure, where the network has the channel: computed from the decoder's last
+    /// features detached from the graph, so that its loss terms train the pressure convolution
+    /// and leave the features, which depth shares, to depth (BENCHMARKS.md, "The force head").
     pub pressure: Option<Tensor<4>>,
-    /// While training (an autodiff device), the same pressure computed from the decoder's
-    /// features detached from the graph: a loss term on it trains the pressure convolution and
-    /// leaves the features, which depth shares, to the other terms.
-    pub pressure_head_only: Option<Tensor<4>>,
     /// The contact force (`[N, 3]`, x, y, z in [`crate::FORCE_N_PER_LOSS_UNIT`]s, sensor frame),
     /// where the network has the force head.
     pub force: Option<Tensor<2>>,
@@ -130,15 +129,11 @@ impl Decoder {
             }
             None => x,
         };
-        let pressure = self.pressure.as_ref().map(|c| conv2d(c, x.clone()));
-        // While training: the same channel on features cut from the graph, for the loss's
-        // resultant term, whose gradient then reaches the pressure convolution alone.
-        let pressure_head_only = match &self.pressure {
-            Some(c) if x.device().is_autodiff() => Some(conv2d(c, x.clone().detach())),
-            _ => None,
-        };
+        // Cut from the graph (nothing to cut at inference): the pressure's terms shaping the
+        // shared features cost depth 1.14x its contact error over three seeds.
+        let pressure = self.pressure.as_ref().map(|c| conv2d(c, x.clone().detach()));
         let depth = conv2d(&self.conv3, x);
         mark("decoder.heads");
-        Heads { depth, pressure, pressure_head_only, force }
+        Heads { depth, pressure, force }
     }
 }
