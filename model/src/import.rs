@@ -173,7 +173,8 @@ fn read_config(path: &Path, shapes: &BTreeMap<String, Vec<usize>>) -> Result<(De
         .with_input(input)
         .with_full_resolution(shapes.contains_key("decoder.up5.conv_a.weight"))
         .with_pressure(shapes.contains_key("decoder.pressure.weight"))
-        .with_force_head(shapes.get("decoder.force.conv.weight").map(|s| s[0]));
+        .with_force_head(shapes.get("decoder.force.conv.weight").map(|s| s[0]))
+        .with_force_head_skip(shapes.contains_key("decoder.force.skip.weight").then_some(true));
     let encoder_only = !shapes.contains_key("decoder.conv2.weight");
     if !encoder_only {
         let width = shape("decoder.conv2.weight")?[0];

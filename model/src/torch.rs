@@ -55,9 +55,17 @@ pub fn differences_from_reference(config: &DenseDepthConfig) -> Vec<String> {
         out.push("the network has a pressure output: a second 3x3 convolution (decoder.pressure) beside conv3".into());
     }
     if let Some(hidden) = config.force_head {
+        let skip = if config.force_head_reads_transition2() {
+            format!(
+                ", plus the same on relu(transition2) through its own 1x1 convolution to {hidden} channels \
+                 (decoder.force.skip)"
+            )
+        } else {
+            String::new()
+        };
         out.push(format!(
             "the network has a force head (decoder.force): a 1x1 convolution to {hidden} channels on relu(norm5), \
-             LeakyReLU(0.2), the mean over the image, a linear map to 3"
+             LeakyReLU(0.2), the mean over the image{skip}, a linear map to 3"
         ));
     }
     out

@@ -97,9 +97,12 @@ fn the_pytorch_fixture_exported_gives_pytorchs_output() {
 #[test]
 fn the_pressure_output_is_the_graphs_second_and_the_force_head_its_third() {
     let device = model::backend::default_device();
-    for head in [None, Some(8)] {
+    for (head, skip) in [(None, false), (Some(8), false), (Some(8), true)] {
         device.seed(5);
-        let config = DenseDepthConfig::new(DenseNetConfig::tiny()).with_pressure(true).with_force_head(head);
+        let config = DenseDepthConfig::new(DenseNetConfig::tiny())
+            .with_pressure(true)
+            .with_force_head(head)
+            .with_force_head_skip(skip.then_some(true));
         let net = config.init(&device);
         let bytes = model::onnx::export(&net, &bundle_file(&config)).unwrap();
         let shape = [2, 3, 40, 52];
@@ -138,7 +141,7 @@ fn the_pressure_output_is_the_graphs_second_and_the_force_head_its_third() {
             let view = got.to_plain_array_view::<f32>().unwrap();
             assert_eq!(view.shape(), dims.as_slice());
             let (abs, rel) = errors(&view.iter().copied().collect::<Vec<_>>(), &want);
-            assert!(rel <= 1e-4, "head {head:?}: max_abs_err={abs} max_rel_err={rel}");
+            assert!(rel <= 1e-4, "head {head:?}, skip {skip}: max_abs_err={abs} max_rel_err={rel}");
         }
     }
 }

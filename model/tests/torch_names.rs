@@ -49,17 +49,19 @@ fn keys_follow_the_reference_model() {
 fn our_architectures_round_trip_exactly_and_say_how_they_differ() {
     let tmp = tempfile::tempdir().unwrap();
     let device = model::backend::default_device();
-    for (input, full, force) in [
-        (InputChannels::Rgb, false, false),
-        (InputChannels::RgbDifference, true, false),
-        (InputChannels::Rgb, false, true),
+    for (input, full, force, skip) in [
+        (InputChannels::Rgb, false, false, false),
+        (InputChannels::RgbDifference, true, false, false),
+        (InputChannels::Rgb, false, true, false),
+        (InputChannels::Rgb, false, true, true),
     ] {
         device.seed(5);
         let config = DenseDepthConfig::new(DenseNetConfig::tiny())
             .with_input(input)
             .with_full_resolution(full)
             .with_pressure(force)
-            .with_force_head(force.then_some(8));
+            .with_force_head(force.then_some(8))
+            .with_force_head_skip(skip.then_some(true));
         let model = config.init(&device);
         let (bytes, back) = round_trip(&model, tmp.path());
         assert_eq!(back.config, config, "the configuration read off the shapes");
@@ -84,6 +86,10 @@ fn our_architectures_round_trip_exactly_and_say_how_they_differ() {
             let torch: Vec<u32> =
                 st.tensor(key).unwrap().data().chunks(4).map(|b| u32::from_le_bytes(b.try_into().unwrap())).collect();
             assert_eq!(torch[1], burn[3], "[0][1] of PyTorch's is [1][0] of Burn's");
+            let transition2 = config.encoder.skip_channels().0[3];
+            let skip_shape = st.tensor("decoder.force.skip.weight").map(|t| t.shape().to_vec()).ok();
+            assert_eq!(skip_shape, skip.then(|| vec![8, transition2, 1, 1]));
+            assert_eq!(differences.iter().any(|d| d.contains("decoder.force.skip")), skip);
         }
     }
 }

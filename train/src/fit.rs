@@ -41,9 +41,15 @@ impl Start {
         if config.force_weight <= 0.0 {
             return self;
         }
+        // A head the network has keeps its design; a new one reads transition2 too.
+        let skip = self.model_config.force_head.is_none() || self.model_config.force_head_reads_transition2();
         let hidden = self.model_config.force_head.unwrap_or(model::ForceHead::DEFAULT_HIDDEN);
-        let model_config = self.model_config.with_pressure(true).with_force_head(Some(hidden));
-        let weights = self.weights.map(|w| w.with_pressure_output(device).with_force_head(hidden, device));
+        let model_config = self
+            .model_config
+            .with_pressure(true)
+            .with_force_head(Some(hidden))
+            .with_force_head_skip(skip.then_some(true));
+        let weights = self.weights.map(|w| w.with_pressure_output(device).with_force_head(hidden, skip, device));
         Start { weights, model_config }
     }
 }

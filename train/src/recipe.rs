@@ -60,9 +60,9 @@ impl Recipe {
                 warmup_steps: 100,
                 val_fraction: 0.1,
                 contact_weight: 5.0,
-                // The force outputs train beside depth: the force head's force, 4.1 % of the mean
+                // The force outputs train beside depth: the force head's force, 3.5 % of the mean
                 // force against the solve's 8.8 % on a depth-alone network, for a contact L1
-                // 1.00x that network's over three seeds (BENCHMARKS.md, "The force head").
+                // 0.98x that network's over three seeds (BENCHMARKS.md, "The force head").
                 force_weight: FitConfig::DEFAULT_FORCE_WEIGHT,
                 ..base
             },

@@ -193,9 +193,18 @@ pub struct DenseDepthConfig {
     /// contact's total force as three numbers, trained beside depth on the labels' force
     /// (`train fit --force-weight`). `None` (and configurations written before this field): none.
     pub force_head: Option<usize>,
+    /// `Some(true)`: the force head reads transition2's features too (`ForceHead::skip`; on the
+    /// quickstart's scenes 4.07 -> 3.46 % of the mean force, BENCHMARKS.md). `None`
+    /// (configurations written before this field) or `Some(false)`: norm5's alone.
+    pub force_head_skip: Option<bool>,
 }
 
 impl DenseDepthConfig {
+    /// Whether the force head, where there is one, reads transition2 too.
+    pub fn force_head_reads_transition2(&self) -> bool {
+        self.force_head_skip == Some(true)
+    }
+
     /// The decoder's widths: `n = int(bottleneck * width)`, then `n/2, n/4, n/8, n/16`.
     pub fn decoder_channels(&self) -> [usize; 5] {
         let (_, bottleneck) = self.encoder.skip_channels();
@@ -281,15 +290,23 @@ mod tests {
         assert!(absurd.check().unwrap_err().to_string().contains("force_head"));
     }
 
-    /// A configuration written before the force head reads as one without it, and one with it
-    /// reads back as it was written.
+    /// A configuration written before the force head (or its skip) reads as one without it, and
+    /// one with it reads back as it was written.
     #[test]
     fn the_force_head_is_optional_in_configuration_files() {
-        let with = DenseDepthConfig::new(DenseNetConfig::tiny()).with_pressure(true).with_force_head(Some(64));
+        let with = DenseDepthConfig::new(DenseNetConfig::tiny())
+            .with_pressure(true)
+            .with_force_head(Some(64))
+            .with_force_head_skip(Some(true));
         let mut json = serde_json::to_value(&with).unwrap();
         assert_eq!(serde_json::from_value::<DenseDepthConfig>(json.clone()).unwrap(), with);
+        // Before the skip: a head on norm5 alone.
+        json.as_object_mut().unwrap().remove("force_head_skip");
+        let before_skip: DenseDepthConfig = serde_json::from_value(json.clone()).unwrap();
+        assert_eq!(before_skip, with.clone().with_force_head_skip(None));
+        assert!(!before_skip.force_head_reads_transition2() && with.force_head_reads_transition2());
         json.as_object_mut().unwrap().remove("force_head");
         let old: DenseDepthConfig = serde_json::from_value(json).unwrap();
-        assert_eq!(old, with.with_force_head(None));
+        assert_eq!(old, with.with_force_head(None).with_force_head_skip(None));
     }
 }

@@ -2,8 +2,8 @@
 //! with LeakyReLU(0.2), and a 3x3 convolution to one channel at half the input resolution; or,
 //! with a fifth block whose skip is the input itself, at the input's resolution. A network with
 //! a pressure output reads the same last features, cut from the graph, with a second 3x3
-//! convolution; one with a
-//! force head reads the encoder's last features (`ForceHead`).
+//! convolution; one with a force head reads the encoder's last features (`ForceHead`), and
+//! transition2's where it has its skip.
 
 use burn::module::Module;
 use burn::nn::PaddingConfig2d;
@@ -64,21 +64,23 @@ pub struct Decoder {
     pub conv3: Conv2d,
     /// The contact pressure's channel (`DenseDepthConfig::pressure`), beside `conv3`.
     pub pressure: Option<Conv2d>,
-    /// The force head (`DenseDepthConfig::force_head`), on the encoder's last features.
+    /// The force head (`DenseDepthConfig::force_head`), on the encoder's last features (and
+    /// transition2's, `DenseDepthConfig::force_head_skip`).
     pub force: Option<ForceHead>,
 }
 
 impl Decoder {
     /// `skips`: channels of relu0, pool0, transition1, transition2; `widths` from
     /// `DenseDepthConfig::decoder_channels`; `full_input`: the input's channels when the output
-    /// is at the input's resolution.
+    /// is at the input's resolution; `force_head`: the force head's width and whether it reads
+    /// transition2 too.
     pub fn new(
         skips: [usize; 4],
         bottleneck: usize,
         widths: [usize; 5],
         full_input: Option<usize>,
         pressure: bool,
-        force_head: Option<usize>,
+        force_head: Option<(usize, bool)>,
         device: &Device,
     ) -> Self {
         let [n, n2, n4, n8, n16] = widths;
@@ -91,7 +93,8 @@ impl Decoder {
             up4: UpBlock::new(n8 + skips[0], n16, device),
             conv3: conv3([n16, 1], device),
             pressure: pressure.then(|| conv3([n16, 1], device)),
-            force: force_head.map(|hidden| ForceHead::new(bottleneck, hidden, device)),
+            force: force_head
+                .map(|(hidden, skip)| ForceHead::new(bottleneck, skip.then_some(skips[3]), hidden, device)),
         }
     }
 
@@ -110,7 +113,7 @@ impl Decoder {
         mark: &mut dyn FnMut(&'static str),
     ) -> Heads {
         let features = relu(s.norm5);
-        let force = self.force.as_ref().map(|head| head.forward(features.clone()));
+        let force = self.force.as_ref().map(|head| head.forward(features.clone(), s.transition2.clone()));
         let x = conv2d(&self.conv2, features);
         mark("decoder.conv2");
         let x = self.up1.forward(x, s.transition2, mode);

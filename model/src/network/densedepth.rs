@@ -28,7 +28,7 @@ impl DenseDepthConfig {
                 self.decoder_channels(),
                 self.full_resolution.then_some(self.input.count()),
                 self.pressure,
-                self.force_head,
+                self.force_head.map(|hidden| (hidden, self.force_head_reads_transition2())),
                 device,
             ),
         }
@@ -69,12 +69,14 @@ impl DenseDepth {
         self.decoder.force.is_some()
     }
 
-    /// This network with a force head of `hidden` width, freshly initialised from `device`'s
-    /// generator where it has none: a network trained without one fine-tuned into one with it.
-    pub fn with_force_head(mut self, hidden: usize, device: &Device) -> Self {
+    /// This network with a force head of `hidden` width (reading transition2 too where `skip`),
+    /// freshly initialised from `device`'s generator where it has none: a network trained
+    /// without one fine-tuned into one with it.
+    pub fn with_force_head(mut self, hidden: usize, skip: bool, device: &Device) -> Self {
         if self.decoder.force.is_none() {
             let features = self.decoder.conv2.weight.dims()[1];
-            self.decoder.force = Some(super::ForceHead::new(features, hidden, device));
+            let transition2 = self.decoder.up1.conv_a.weight.dims()[1] - self.decoder.conv2.weight.dims()[0];
+            self.decoder.force = Some(super::ForceHead::new(features, skip.then_some(transition2), hidden, device));
         }
         self
     }

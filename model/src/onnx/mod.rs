@@ -302,13 +302,15 @@ impl Graph {
         ))
     }
 
-    /// The force head (`crate::ForceHead`) on relu(norm5): `[batch, 3]`, N.
-    fn force_head(&mut self, head: &crate::ForceHead, features: &str) -> Result<String, OnnxError> {
-        let y = self.conv("decoder.force.conv", &head.conv, features)?;
-        let y = self.node("LeakyRelu", "decoder.force.leaky", &[&y], vec![attr_float("alpha", LEAKY_SLOPE as f32)]);
-        // Opset 17's ReduceMean takes its axes as an attribute.
-        let attrs = vec![attr_ints("axes", &[2, 3]), attr_int("keepdims", 0)];
-        let pooled = self.node("ReduceMean", "decoder.force.mean", &[&y], attrs);
+    /// The force head (`crate::ForceHead`) on relu(norm5) and, where it has its skip, on
+    /// relu(transition2): `[batch, 3]`, N.
+    fn force_head(&mut self, head: &crate::ForceHead, features: &str, transition2: &str) -> Result<String, OnnxError> {
+        let mut pooled = self.pooled_1x1("decoder.force", &head.conv, features)?;
+        if let Some(skip) = &head.skip {
+            let t2 = self.relu("decoder.force.skip.relu", transition2);
+            let more = self.pooled_1x1("decoder.force.skip", skip, &t2)?;
+            pooled = self.node("Add", "decoder.force.pooled", &[&pooled, &more], vec![]);
+        }
         // Burn's Linear holds [in, out]: x W + b.
         let w = self.weight("decoder.force.linear.weight", head.linear.weight.val());
         let y = self.node("MatMul", "decoder.force.linear", &[&pooled, &w], vec![]);
@@ -321,6 +323,16 @@ impl Graph {
         };
         let unit = self.scalar("decoder.force.n_per_unit", crate::FORCE_N_PER_LOSS_UNIT);
         Ok(self.node("Mul", "decoder.force.n", &[&y, &unit], vec![]))
+    }
+
+    /// `ForceHead`'s 1x1 convolution named `name`, LeakyReLU and the mean over the image: `[batch, C]`.
+    fn pooled_1x1(&mut self, name: &str, conv: &Conv2d, x: &str) -> Result<String, OnnxError> {
+        let y = self.conv(&format!("{name}.conv"), conv, x)?;
+        let leaky = vec![attr_float("alpha", LEAKY_SLOPE as f32)];
+        let y = self.node("LeakyRelu", &format!("{name}.leaky"), &[&y], leaky);
+        // Opset 17's ReduceMean takes its axes as an attribute.
+        let attrs = vec![attr_ints("axes", &[2, 3]), attr_int("keepdims", 0)];
+        Ok(self.node("ReduceMean", &format!("{name}.mean"), &[&y], attrs))
     }
 
     /// The depth output's name, and the pressure's and the force head's where the network has them.
@@ -354,7 +366,7 @@ impl Graph {
 
         let d = &net.decoder;
         let force = match &d.force {
-            Some(head) => Some(self.force_head(head, &norm5)?),
+            Some(head) => Some(self.force_head(head, &norm5, &t2)?),
             None => None,
         };
         let x = self.conv("decoder.conv2", &d.conv2, &norm5)?;
