@@ -75,7 +75,7 @@ impl DenseDepth {
     pub fn with_force_head(mut self, hidden: usize, skip: bool, device: &Device) -> Self {
         if self.decoder.force.is_none() {
             let features = self.decoder.conv2.weight.dims()[1];
-            let transition2 = self.decoder.up1.conv_a.weight.dims()[1] - self.decoder.conv2.weight.dims()[0];
+            let transition2 = self.encoder.transition2.conv.weight.dims()[0];
             self.decoder.force = Some(super::ForceHead::new(features, skip.then_some(transition2), hidden, device));
         }
         self

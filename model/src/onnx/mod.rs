@@ -305,7 +305,7 @@ impl Graph {
     /// The force head (`crate::ForceHead`) on relu(norm5) and, where it has its skip, on
     /// relu(transition2): `[batch, 3]`, N.
     fn force_head(&mut self, head: &crate::ForceHead, features: &str, transition2: &str) -> Result<String, OnnxError> {
-        let mut pooled = self.pooled_1x1("decoder.force", &head.conv, features)?;
+        let mut pooled = self.pooled_1x1("decoder.force.conv", &head.conv, features)?;
         if let Some(skip) = &head.skip {
             let t2 = self.relu("decoder.force.skip.relu", transition2);
             let more = self.pooled_1x1("decoder.force.skip", skip, &t2)?;
@@ -325,9 +325,10 @@ impl Graph {
         Ok(self.node("Mul", "decoder.force.n", &[&y, &unit], vec![]))
     }
 
-    /// `ForceHead`'s 1x1 convolution named `name`, LeakyReLU and the mean over the image: `[batch, C]`.
+    /// One of `ForceHead`'s 1x1 convolutions, named by its module path as every weight here is,
+    /// then LeakyReLU and the mean over the image: `[batch, C]`.
     fn pooled_1x1(&mut self, name: &str, conv: &Conv2d, x: &str) -> Result<String, OnnxError> {
-        let y = self.conv(&format!("{name}.conv"), conv, x)?;
+        let y = self.conv(name, conv, x)?;
         let leaky = vec![attr_float("alpha", LEAKY_SLOPE as f32)];
         let y = self.node("LeakyRelu", &format!("{name}.leaky"), &[&y], leaky);
         // Opset 17's ReduceMean takes its axes as an attribute.
