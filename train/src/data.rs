@@ -136,6 +136,12 @@ pub struct DepthDataset {
     /// Whether a jittered item's look varies too ([`Jitter::look`]): training a base model
     /// for units it has not seen. Default false.
     pub vary_look: bool,
+    /// Whether frames are read as `infer` reads them ([`read_as_infer`](Self::read_as_infer)):
+    /// each frame's global drift against its reference taken out at the crop's size
+    /// (`sensor::gate::Balance`, where it is not none), before resizing and any jitter.
+    /// Training reads frames as stored; the force head's refit reads them this way, since its
+    /// map is fitted to the features inference computes.
+    balance_drift: bool,
     /// Whether items carry their pressure maps (a network with the pressure output).
     pressure: bool,
     /// Samples decoded in an earlier epoch ([`DepthDataset::keep_decoded`]); shared by clones
@@ -226,6 +232,7 @@ impl DepthDataset {
             input_hw,
             output_hw,
             vary_look: false,
+            balance_drift: false,
             pressure: false,
             decoded: Arc::default(),
         })
@@ -397,6 +404,29 @@ impl DepthDataset {
         })
     }
 
+    /// This dataset reading frames as `infer` reads them ([`balance_drift`](Self::balance_drift)),
+    /// with a cache of its own (the same budget) since its decoded frames differ.
+    pub fn read_as_infer(&self) -> DepthDataset {
+        let mut data = self.clone();
+        data.balance_drift = true;
+        data.forget_decoded();
+        data
+    }
+
+    /// Sample `i`'s crop-size frame `img` with its global drift against its reference (its own,
+    /// else its unit's) undone, as `infer::Predictor::input` undoes it before resizing;
+    /// unchanged where there is no reference or no drift to undo.
+    fn balanced(&self, img: image::RgbImage, i: usize) -> Result<image::RgbImage, DataError> {
+        let unit = &self.units[self.unit_of[i]];
+        let Some(path) = self.records[i].reference.as_ref().map(|rel| unit.dir.join(rel)).or(unit.reference.clone())
+        else {
+            return Ok(img);
+        };
+        let reference = sensor::frame::read_reference(&path, unit.sensor.crop_size_px)?;
+        let balance = sensor::gate::Balance::fit(&img, &reference, &unit.sensor.valid_mask());
+        Ok(if balance.is_none() { img } else { balance.undo(&img) })
+    }
+
     /// Sample `i`'s camera image file.
     fn image_path(&self, i: usize) -> PathBuf {
         self.units[self.unit_of[i]].dir.join(self.records[i].image.as_ref().expect("checked at open"))
@@ -421,6 +451,7 @@ impl DepthDataset {
                 format!("image is {}x{}, the sensor's crop is {crop}x{crop}", img.width(), img.height()),
             ));
         }
+        let img = if self.balance_drift { self.balanced(img, i)? } else { img };
         let depth_path = unit.dir.join(&record.depth);
         let depth = DepthMap::load_png_um(&depth_path).map_err(|e| bad(&depth_path, e))?;
         if depth.size_px != crop {

@@ -24,6 +24,7 @@ use model::{DenseDepth, DenseDepthConfig, DepthLossConfig};
 use crate::checkpoint::{self, RunState};
 use crate::config::{FitConfig, OnBadData, optimizer};
 use crate::data::{DepthBatcher, DepthDataset};
+use crate::force_refit::{ForceRefit, refit_force_head};
 use crate::loader::BatchLoader;
 use crate::parallel::DataParallel;
 use crate::view::RunView;
@@ -58,6 +59,9 @@ impl Start {
 pub struct Fitted {
     pub net: DenseDepth,
     pub state: RunState,
+    /// The force head's linear map refitted on the trained features, where the network has the
+    /// head and the run a validation hold-out ([`crate::ForceRefit`]).
+    pub force_refit: Option<ForceRefit>,
 }
 
 /// How a run is carried out rather than what it computes: nothing here changes the result, so
@@ -155,7 +159,20 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
         Some(best) => checkpoint::restore_model(&best, &run.state.model, device)?,
         None => run.net.valid(),
     };
-    Ok(Fitted { net, state: run.state })
+    let (net, force_refit) = if !net.has_force_head() {
+        (net, None)
+    } else if config.val_fraction <= 0.0 {
+        // Its strength would be chosen on the test split.
+        eprintln!("force head: kept as trained (no validation hold-out to judge a refitted map on)");
+        (net, None)
+    } else {
+        let (net, refit) = refit_force_head(net, &run.train, &run.val, &run.batcher, device, config)?;
+        if let Some(r) = &refit {
+            eprintln!("{}", r.line());
+        }
+        (net, refit)
+    };
+    Ok(Fitted { net, state: run.state, force_refit })
 }
 
 /// The samples a run trains on and those it validates on: the training split (or the seeded

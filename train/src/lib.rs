@@ -10,6 +10,7 @@ pub mod data;
 pub mod elastomer;
 pub mod export;
 mod fit;
+mod force_refit;
 pub mod gate;
 mod loader;
 pub mod parallel;
@@ -18,6 +19,7 @@ mod view;
 
 pub use config::{FitConfig, OnBadData, Schedule, SettingError, optimizer};
 pub use fit::{Evaluation, Fitted, RunOptions, Start, fit, fit_on, fit_with, permutation, select, validate};
+pub use force_refit::ForceRefit;
 pub use formats::training::EpochMetrics;
 pub use loader::{BatchLoader, DecodedBatch};
 pub use recipe::{Recipe, RecipeNetwork};

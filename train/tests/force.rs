@@ -76,6 +76,7 @@ fn the_pressure_output_trains_beside_depth_and_travels_in_the_bundle() {
     assert!(fitted.net.has_pressure() && fitted.state.model.pressure, "a force weight gives the pressure output");
     assert!(fitted.net.has_force_head(), "and the force head");
     assert_eq!(fitted.state.model.force_head, Some(model::ForceHead::DEFAULT_HIDDEN));
+    assert_eq!(fitted.force_refit, None, "validated on the test split: no refit chosen on it");
     let h = &fitted.state.history;
     let evaluation = on(&fitted.net);
     let after = evaluation.pressure_l1_kpa.unwrap();
@@ -118,6 +119,80 @@ fn the_pressure_output_trains_beside_depth_and_travels_in_the_bundle() {
     let tuned = fit(&tmp.path().join("tune"), &config(&data, 1, 1.0), start, &device, false).unwrap();
     assert!(tuned.net.has_pressure() && tuned.state.model.pressure && tuned.net.has_force_head());
     assert!(tuned.state.history[0].val_pressure_l1_kpa.is_some());
+}
+
+/// With a validation hold-out the head's linear map is refitted in closed form when training
+/// ends: both figures it reports are the networks' own on that hold-out read as `infer` reads
+/// it (the best epoch's as trained, the returned one's), and the refitted map is kept only
+/// where it does better there.
+#[test]
+fn the_force_heads_map_is_refitted_on_the_hold_out_and_reports_the_networks_figures() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    tiny_dataset(&data);
+    let device = model::backend::default_device();
+    let config = FitConfig { val_fraction: 0.25, ..config(&data, 2, 1.0) };
+    let run = tmp.path().join("run");
+    let fitted = fit(&run, &config, Start { model_config: tiny(), weights: None }, &device, false).unwrap();
+    let refit = fitted.force_refit.clone().expect("a refit judged on the hold-out");
+
+    let (train_set, mut val) = train::select(&config).unwrap();
+    val.set_model(&fitted.state.model).unwrap();
+    // Judged on the hold-out read as `infer` reads it.
+    let val = val.read_as_infer();
+    let labelled =
+        |set: &train::data::DepthDataset| (0..set.len()).filter(|&i| set.record(i).force_label().is_some()).count();
+    assert_eq!((refit.train_images, refit.val_images), (labelled(&train_set), labelled(&val)));
+    let batcher = train::data::DepthBatcher::for_data(&val);
+    let percent = |net: &model::DenseDepth| {
+        let e = train::validate(net, &val, &batcher, 2, &device, train::OnBadData::Stop, "validation").unwrap();
+        e.head_force.expect("the head's figures").total_percent()
+    };
+    let best = train::checkpoint::best(&run).expect("the best epoch");
+    let trained = train::checkpoint::restore_model(&best, &fitted.state.model, &device).unwrap();
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-3 * b.max(1.0);
+    assert!(close(percent(&trained), refit.trained_percent), "{refit:?}");
+    let returned = percent(&fitted.net);
+    assert!(close(returned, if refit.kept { refit.refit_percent } else { refit.trained_percent }), "{refit:?}");
+    assert_eq!(refit.kept, refit.refit_percent < refit.trained_percent, "{refit:?}");
+    let map = |net: &model::DenseDepth| net.decoder.force.as_ref().unwrap().map();
+    assert_eq!(map(&trained) != map(&fitted.net), refit.kept, "the map changes exactly when the refit is kept");
+    assert!(refit.line().contains("force head") && (1e-6..=0.1).contains(&refit.alpha), "{}", refit.line());
+}
+
+/// The refit reads frames as `infer` does (`DepthDataset::read_as_infer`): a frame whose camera
+/// drifted (a gain per channel) reads, balanced, as the undrifted frame does; as stored it
+/// does not.
+#[test]
+fn a_drifted_frame_read_balanced_reads_as_the_undrifted_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    tiny_dataset(&data);
+    let open = |as_infer: bool| {
+        let set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
+        if as_infer { set.read_as_infer() } else { set }
+    };
+    let i = 1;
+    let (stored, balanced) = (open(false).load(i, None).unwrap().image, open(true).load(i, None).unwrap().image);
+    let frame = open(false).camera_image(i).unwrap();
+    let path = data.join(open(false).record(i).image.as_ref().unwrap());
+    let gain = [1.08f32, 0.93, 1.05];
+    let mut drifted = frame.clone();
+    for p in drifted.pixels_mut() {
+        for (v, g) in p.0.iter_mut().zip(gain) {
+            *v = (*v as f32 * g).round().clamp(0.0, 255.0) as u8;
+        }
+    }
+    drifted.save(&path).unwrap();
+    let worst = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
+    let mean = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(p, q)| (p - q).abs()).sum::<f32>() / a.len() as f32;
+    let as_stored = open(false).load(i, None).unwrap().image;
+    let read_balanced = open(true).load(i, None).unwrap().image;
+    assert!(mean(&as_stored, &stored) > 0.02, "the drift shows as stored: {}", mean(&as_stored, &stored));
+    // Undone to the balance's bins and the levels' rounding (about a level in 255), bar the
+    // levels the gain clipped at 255.
+    let (m, w) = (mean(&read_balanced, &balanced), worst(&read_balanced, &balanced));
+    assert!(m < 0.004 && w < 0.06, "balanced: mean {m}, worst {w}");
 }
 
 #[test]

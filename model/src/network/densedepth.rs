@@ -1,6 +1,7 @@
 //! The whole network.
 
 use burn::module::Module;
+use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
 use super::config::DenseDepthConfig;
@@ -79,6 +80,22 @@ impl DenseDepth {
             self.decoder.force = Some(super::ForceHead::new(features, skip.then_some(transition2), hidden, device));
         }
         self
+    }
+
+    /// The force head's pooled features (`[N, hidden]`, [`ForceHead::pooled`]) on `images`, as
+    /// the forward computes them, where the network has the head: what a map fitted in closed
+    /// form reads. Panics on an input [`check_input`](Self::check_input) refuses.
+    pub fn force_features(&self, images: Tensor<4>) -> Option<Tensor<2>> {
+        let head = self.decoder.force.as_ref()?;
+        if let Err(e) = self.check_input(images.dims()) {
+            panic!("{e}");
+        }
+        let plain_flex = crate::kernels::plain_flex(&images.device());
+        let run = || {
+            let s = self.encoder.forward(images);
+            head.pooled(relu(s.norm5), s.transition2)
+        };
+        Some(if plain_flex { crate::backend::in_pool(run) } else { run() })
     }
 
     /// Panics on an input [`check_input`](Self::check_input) refuses.
@@ -247,6 +264,46 @@ mod tests {
         // Without autodiff there is nothing to cut: the same output on the depth's grid.
         let plain = net.valid().forward_heads(x.inner());
         assert_eq!(plain.pressure.unwrap().dims(), plain.depth.dims());
+    }
+
+    /// The head's output is its linear map of [`DenseDepth::force_features`], and a map given
+    /// by [`ForceHead::with_map`] is the one the forward then applies.
+    #[test]
+    fn the_force_head_is_a_linear_map_of_its_features() {
+        let device = crate::backend::default_device();
+        let config = DenseDepthConfig::new(crate::network::DenseNetConfig::tiny())
+            .with_force_head(Some(8))
+            .with_force_head_skip(Some(true));
+        let net = config.init(&device);
+        let x = Tensor::<4>::random([2, 3, 48, 48], burn::tensor::Distribution::Uniform(0.0, 1.0), &device);
+        let values = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
+        let apply = |h: &[f32], (w, b): &(Vec<f32>, [f32; 3])| -> Vec<f32> {
+            let hidden = w.len() / 3;
+            (0..h.len() / hidden)
+                .flat_map(|n| (0..3).map(move |k| (n, k)))
+                .map(|(n, k)| b[k] + (0..hidden).map(|j| h[n * hidden + j] * w[j * 3 + k]).sum::<f32>())
+                .collect()
+        };
+        let close = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(p, q)| (p - q).abs() <= 1e-4 * (1.0 + q.abs()));
+        let features = values(net.force_features(x.clone()).unwrap());
+        assert_eq!(features.len(), 2 * 8);
+        let head = net.decoder.force.as_ref().unwrap();
+        let out = values(net.forward_heads(x.clone()).force.unwrap());
+        assert!(close(&out, &apply(&features, &head.map())), "{out:?}");
+        // A new map: a distinct number in each place, and the bias.
+        let map = ((0..24).map(|i| 0.1 * i as f32 - 1.0).collect::<Vec<_>>(), [0.5, -2.0, 3.0]);
+        let mut net = net;
+        net.decoder.force = net.decoder.force.map(|h| h.with_map(&map.0, map.1));
+        assert_eq!(net.decoder.force.as_ref().unwrap().map(), map);
+        let out = values(net.forward_heads(x.clone()).force.unwrap());
+        assert!(close(&out, &apply(&features, &map)), "{out:?}");
+        assert_eq!(values(net.force_features(x).unwrap()), features, "the features do not read the map");
+        assert!(
+            DenseDepthConfig::new(crate::network::DenseNetConfig::tiny())
+                .init(&device)
+                .force_features(Tensor::<4>::zeros([1, 3, 48, 48], &device))
+                .is_none()
+        );
     }
 
     #[test]
