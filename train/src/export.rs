@@ -14,7 +14,7 @@ use crate::checkpoint::{self, RunState};
 use crate::data::DepthDataset;
 
 /// Writes the bundle of a run: its best epoch on the held-out validation samples if it keeps
-/// one, else its latest checkpoint.
+/// one, else its latest checkpoint; its force head's map refitted as `fit` refits it.
 /// `keys` names the tensors of `weights.safetensors` (PyTorch's with `--torch-names`).
 pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device, keys: SafetensorsKeys) -> Result<()> {
     let latest =
@@ -25,6 +25,8 @@ pub fn export_run(run: &Path, out: &Path, device: &burn::tensor::Device, keys: S
     let state = checkpoint::read_state(&latest)?;
     let weights = checkpoint::best(run).unwrap_or(latest);
     let net = checkpoint::restore_model(&weights, &state.model, device)?;
+    // As `fit` returned it: the force head's map refitted the same way on the same data.
+    let (net, _) = crate::fit::refit_run_force_head(net, &state, device)?;
     export_net_with(&net, &state, out, &[run], keys)
 }
 

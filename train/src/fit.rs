@@ -159,20 +159,39 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
         Some(best) => checkpoint::restore_model(&best, &run.state.model, device)?,
         None => run.net.valid(),
     };
-    let (net, force_refit) = if !net.has_force_head() {
-        (net, None)
-    } else if config.val_fraction <= 0.0 {
-        // Its strength would be chosen on the test split.
+    // The run's decoded samples let go before the refit reads the splits afresh.
+    let Run { state, .. } = run;
+    let (net, force_refit) = refit_run_force_head(net, &state, device)?;
+    Ok(Fitted { net, state, force_refit })
+}
+
+/// The run's network with its force head's linear map refitted (`crate::ForceRefit`) where it
+/// has the head and the run a validation hold-out to judge the refit on (without one its
+/// strength would be chosen on the test split): what `fit` returns and `train export` writes,
+/// from the same best epoch and data alike.
+pub(crate) fn refit_run_force_head(
+    net: DenseDepth,
+    state: &RunState,
+    device: &Device,
+) -> Result<(DenseDepth, Option<ForceRefit>)> {
+    if !net.has_force_head() {
+        return Ok((net, None));
+    }
+    let config = &state.config;
+    if config.val_fraction <= 0.0 {
         eprintln!("force head: kept as trained (no validation hold-out to judge a refitted map on)");
-        (net, None)
-    } else {
-        let (net, refit) = refit_force_head(net, &run.train, &run.val, &run.batcher, device, config)?;
-        if let Some(r) = &refit {
-            eprintln!("{}", r.line());
-        }
-        (net, refit)
-    };
-    Ok(Fitted { net, state: run.state, force_refit })
+        return Ok((net, None));
+    }
+    let (mut train, mut val) = select(config)?;
+    train.vary_look = config.vary_look;
+    train.set_model(&state.model)?;
+    val.set_model(&state.model)?;
+    let batcher = DepthBatcher::for_data(&train);
+    let (net, refit) = refit_force_head(net, &train, &val, &batcher, device, config)?;
+    if let Some(r) = &refit {
+        eprintln!("{}", r.line());
+    }
+    Ok((net, refit))
 }
 
 /// The samples a run trains on and those it validates on: the training split (or the seeded

@@ -158,6 +158,11 @@ fn the_force_heads_map_is_refitted_on_the_hold_out_and_reports_the_networks_figu
     let map = |net: &model::DenseDepth| net.decoder.force.as_ref().unwrap().map();
     assert_eq!(map(&trained) != map(&fitted.net), refit.kept, "the map changes exactly when the refit is kept");
     assert!(refit.line().contains("force head") && (1e-6..=0.1).contains(&refit.alpha), "{}", refit.line());
+    // `train export` of the run writes the network `fit` returned, refitted alike.
+    let bundle = tmp.path().join("bundle");
+    train::export::export_run(&run, &bundle, &device, model::bundle::SafetensorsKeys::Burn).unwrap();
+    let (exported, _) = model::bundle::load_bundle(&bundle, &device).unwrap();
+    assert_eq!(map(&exported), map(&fitted.net));
 }
 
 /// The refit reads frames as `infer` does (`DepthDataset::read_as_infer`): a frame whose camera
