@@ -159,39 +159,45 @@ pub fn fit_with(run_dir: &Path, config: &FitConfig, start: Start, options: &RunO
         Some(best) => checkpoint::restore_model(&best, &run.state.model, device)?,
         None => run.net.valid(),
     };
-    // The run's decoded samples let go before the refit reads the splits afresh.
-    let Run { state, .. } = run;
-    let (net, force_refit) = refit_run_force_head(net, &state, device)?;
-    Ok(Fitted { net, state, force_refit })
+    let (net, force_refit) = if wants_refit(&net, config) {
+        refit_force_head(net, &run.train, &run.val, &run.batcher, device, config)?
+    } else {
+        (net, None)
+    };
+    Ok(Fitted { net, state: run.state, force_refit })
 }
 
-/// The run's network with its force head's linear map refitted (`crate::ForceRefit`) where it
-/// has the head and the run a validation hold-out to judge the refit on (without one its
-/// strength would be chosen on the test split): what `fit` returns and `train export` writes,
-/// from the same best epoch and data alike.
+/// The run's network with its force head's linear map refitted (`crate::ForceRefit`) as `fit`
+/// refits it, from the run's state and data: what `train export` writes, the same weights as
+/// `fit` returned.
 pub(crate) fn refit_run_force_head(
     net: DenseDepth,
     state: &RunState,
     device: &Device,
 ) -> Result<(DenseDepth, Option<ForceRefit>)> {
-    if !net.has_force_head() {
-        return Ok((net, None));
-    }
     let config = &state.config;
-    if config.val_fraction <= 0.0 {
-        eprintln!("force head: kept as trained (no validation hold-out to judge a refitted map on)");
+    if !wants_refit(&net, config) {
         return Ok((net, None));
     }
     let (mut train, mut val) = select(config)?;
     train.vary_look = config.vary_look;
-    train.set_model(&state.model)?;
-    val.set_model(&state.model)?;
-    let batcher = DepthBatcher::for_data(&train);
-    let (net, refit) = refit_force_head(net, &train, &val, &batcher, device, config)?;
-    if let Some(r) = &refit {
-        eprintln!("{}", r.line());
+    for split in [&mut train, &mut val] {
+        split.set_model(&state.model)?;
+        // Each frame is read three times: kept decoded between the readings, as a run keeps them.
+        split.keep_decoded(RunOptions::DEFAULT_DECODED_CACHE_MB << 20);
     }
-    Ok((net, refit))
+    let batcher = DepthBatcher::for_data(&train);
+    refit_force_head(net, &train, &val, &batcher, device, config)
+}
+
+/// Whether the force head's map is refitted: where the network has the head and the run a
+/// validation hold-out to judge the refit on (without one its strength would be chosen on the
+/// test split; said).
+fn wants_refit(net: &DenseDepth, config: &FitConfig) -> bool {
+    if net.has_force_head() && config.val_fraction <= 0.0 {
+        eprintln!("force head: kept as trained (no validation hold-out to judge a refitted map on)");
+    }
+    net.has_force_head() && config.val_fraction > 0.0
 }
 
 /// The samples a run trains on and those it validates on: the training split (or the seeded

@@ -73,7 +73,8 @@ struct Labelled {
 /// `net` with its force head's linear map refitted on `train` (each frame read as `infer` reads
 /// it and jittered from `config`'s seed) and judged on `val` (a hold-out, never the test split;
 /// read as `infer` reads it), and what was done; `net` as it was, and `None`, where it has no force head or a split has no force label.
-/// Bad samples stop it or are left out, as `config` says; its batch size is `config`'s.
+/// Bad samples stop it or are left out, as `config` says; its batch size is `config`'s. Says
+/// what it did on standard error.
 pub fn refit_force_head(
     net: DenseDepth,
     train: &DepthDataset,
@@ -115,6 +116,7 @@ pub fn refit_force_head(
         kept,
         seconds: started.elapsed().as_secs_f64(),
     };
+    eprintln!("{}", outcome.line());
     if !kept {
         return Ok((net, Some(outcome)));
     }
