@@ -118,6 +118,12 @@ struct UnitFolder {
     force_per_unit: Option<Arc<Vec<f32>>>,
 }
 
+/// What a unit's frames are balanced against when read as `infer` reads them.
+struct UnitBalance {
+    reference: Option<image::RgbImage>,
+    useful: Vec<bool>,
+}
+
 /// The samples of one split of one or more dataset folders that have images: one unit's, or
 /// several units' at once (a base model for new units). Every sample is read with its own
 /// unit's geometry and reference frame.
@@ -136,12 +142,13 @@ pub struct DepthDataset {
     /// Whether a jittered item's look varies too ([`Jitter::look`]): training a base model
     /// for units it has not seen. Default false.
     pub vary_look: bool,
-    /// Whether frames are read as `infer` reads them ([`read_as_infer`](Self::read_as_infer)):
-    /// each frame's global drift against its reference taken out at the crop's size
-    /// (`sensor::gate::Balance`, where it is not none), before resizing and any jitter.
-    /// Training reads frames as stored; the force head's refit reads them this way, since its
-    /// map is fitted to the features inference computes.
-    balance_drift: bool,
+    /// Where frames are read as `infer` reads them ([`read_as_infer`](Self::read_as_infer)):
+    /// per unit, its reference frame and useful pixels, read once, against which each frame's
+    /// global drift is taken out at the crop's size (`sensor::gate::Balance`, where it is not
+    /// none), before resizing and any jitter. `None`: frames as stored, as training reads them;
+    /// the force head's refit reads them this way, since its map is fitted to the features
+    /// inference computes.
+    balance: Option<Arc<Vec<UnitBalance>>>,
     /// Whether items carry their pressure maps (a network with the pressure output).
     pressure: bool,
     /// Samples decoded in an earlier epoch ([`DepthDataset::keep_decoded`]); shared by clones
@@ -232,7 +239,7 @@ impl DepthDataset {
             input_hw,
             output_hw,
             vary_look: false,
-            balance_drift: false,
+            balance: None,
             pressure: false,
             decoded: Arc::default(),
         })
@@ -404,26 +411,31 @@ impl DepthDataset {
         })
     }
 
-    /// This dataset reading frames as `infer` reads them ([`balance_drift`](Self::balance_drift)),
-    /// with a cache of its own (the same budget) since its decoded frames differ.
-    pub fn read_as_infer(&self) -> DepthDataset {
+    /// This dataset reading frames as `infer` reads them ([`DepthDataset::balance`]), with a
+    /// cache of its own (the same budget) since its decoded frames differ. Fails where a
+    /// unit's reference frame cannot be read.
+    pub fn read_as_infer(&self) -> Result<DepthDataset, DataError> {
+        let units = self.units.iter().map(|unit| {
+            let reference = unit.reference.as_ref().map(|p| sensor::frame::read_reference(p, unit.sensor.crop_size_px));
+            Ok(UnitBalance { reference: reference.transpose()?, useful: unit.sensor.valid_mask() })
+        });
         let mut data = self.clone();
-        data.balance_drift = true;
+        data.balance = Some(Arc::new(units.collect::<Result<_, DataError>>()?));
         data.forget_decoded();
-        data
+        Ok(data)
     }
 
     /// Sample `i`'s crop-size frame `img` with its global drift against its reference (its own,
     /// else its unit's) undone, as `infer::Predictor::input` undoes it before resizing;
     /// unchanged where there is no reference or no drift to undo.
-    fn balanced(&self, img: image::RgbImage, i: usize) -> Result<image::RgbImage, DataError> {
+    fn balanced(&self, img: image::RgbImage, i: usize, base: &UnitBalance) -> Result<image::RgbImage, DataError> {
         let unit = &self.units[self.unit_of[i]];
-        let Some(path) = self.records[i].reference.as_ref().map(|rel| unit.dir.join(rel)).or(unit.reference.clone())
-        else {
-            return Ok(img);
+        let own = match &self.records[i].reference {
+            Some(rel) => Some(sensor::frame::read_reference(&unit.dir.join(rel), unit.sensor.crop_size_px)?),
+            None => None,
         };
-        let reference = sensor::frame::read_reference(&path, unit.sensor.crop_size_px)?;
-        let balance = sensor::gate::Balance::fit(&img, &reference, &unit.sensor.valid_mask());
+        let Some(reference) = own.as_ref().or(base.reference.as_ref()) else { return Ok(img) };
+        let balance = sensor::gate::Balance::fit(&img, reference, &base.useful);
         Ok(if balance.is_none() { img } else { balance.undo(&img) })
     }
 
@@ -451,7 +463,10 @@ impl DepthDataset {
                 format!("image is {}x{}, the sensor's crop is {crop}x{crop}", img.width(), img.height()),
             ));
         }
-        let img = if self.balance_drift { self.balanced(img, i)? } else { img };
+        let img = match &self.balance {
+            Some(units) => self.balanced(img, i, &units[self.unit_of[i]])?,
+            None => img,
+        };
         let depth_path = unit.dir.join(&record.depth);
         let depth = DepthMap::load_png_um(&depth_path).map_err(|e| bad(&depth_path, e))?;
         if depth.size_px != crop {

@@ -92,8 +92,8 @@ pub fn refit_force_head(
         DMatrix::from_fn(hidden, 3, |j, k| weight[j * 3 + k] as f64 * unit),
         DVector::from_fn(3, |k, _| bias[k] as f64 * unit),
     );
-    let fit_on = gather(&net, &train.read_as_infer(), JITTERED_COPIES, batcher, device, config)?;
-    let judge_on = gather(&net, &val.read_as_infer(), 0, batcher, device, config)?;
+    let fit_on = gather(&net, &train.read_as_infer()?, JITTERED_COPIES, batcher, device, config)?;
+    let judge_on = gather(&net, &val.read_as_infer()?, 0, batcher, device, config)?;
     if fit_on.features.nrows() < 2 || judge_on.features.nrows() == 0 {
         return Ok((net, None));
     }

@@ -139,7 +139,7 @@ fn the_force_heads_map_is_refitted_on_the_hold_out_and_reports_the_networks_figu
     let (train_set, mut val) = train::select(&config).unwrap();
     val.set_model(&fitted.state.model).unwrap();
     // Judged on the hold-out read as `infer` reads it.
-    let val = val.read_as_infer();
+    let val = val.read_as_infer().unwrap();
     let labelled =
         |set: &train::data::DepthDataset| (0..set.len()).filter(|&i| set.record(i).force_label().is_some()).count();
     assert_eq!((refit.train_images, refit.val_images), (labelled(&train_set), labelled(&val)));
@@ -175,7 +175,7 @@ fn a_drifted_frame_read_balanced_reads_as_the_undrifted_one() {
     tiny_dataset(&data);
     let open = |as_infer: bool| {
         let set = train::data::DepthDataset::open(&data, None, [64, 64]).unwrap();
-        if as_infer { set.read_as_infer() } else { set }
+        if as_infer { set.read_as_infer().unwrap() } else { set }
     };
     let i = 1;
     let (stored, balanced) = (open(false).load(i, None).unwrap().image, open(true).load(i, None).unwrap().image);
