@@ -59,29 +59,32 @@ fn shape_of(x: &FlexTensor, weight_dims: [usize; 2], kernel: usize, padding: usi
     }
 }
 
-/// The convolution on flex tensors, with the bias and activation as its epilogue.
+/// The convolution on flex tensors, with the bias and activation as its epilogue; `keep`: the
+/// weight's Winograd transform kept between calls (inference; a training step's weights change
+/// every step).
 fn flex_conv(
     x: FlexTensor,
     weight: FlexTensor,
     bias: Option<FlexTensor>,
     [padding, stride]: [usize; 2],
     activation: Activation,
+    keep: bool,
 ) -> FlexTensor {
     let (x, weight, bias) = (contiguous(x), contiguous(weight), bias.map(contiguous));
     let w = weight.layout().shape();
     let s = shape_of(&x, [w[0], w[1]], w[2], padding, stride);
     let epilogue = Epilogue::bias(bias.as_ref().map(slice), activation);
-    let out = conv_forward::forward_with(slice(&x), slice(&weight), &s, None, &epilogue);
+    let out = conv_forward::forward_with(slice(&x), slice(&weight), &s, None, &epilogue, keep);
     flex_tensor(out, &[s.batch, s.channels_out, s.out_height(), s.out_width()])
 }
 
 impl GemmConvBackend for Flex {
     fn gemm_conv2d(x: FlexTensor, weight: FlexTensor, padding: usize) -> FlexTensor {
-        flex_conv(x, weight, None, [padding, 1], Activation::Identity)
+        flex_conv(x, weight, None, [padding, 1], Activation::Identity, false)
     }
 
     fn gemm_conv2d_bias(x: FlexTensor, weight: FlexTensor, bias: FlexTensor, padding: usize) -> FlexTensor {
-        flex_conv(x, weight, Some(bias), [padding, 1], Activation::Identity)
+        flex_conv(x, weight, Some(bias), [padding, 1], Activation::Identity, false)
     }
 }
 
@@ -212,7 +215,7 @@ pub(crate) fn conv2d_act(conv: &Conv2d, x: Tensor<4>, activation: Activation) ->
     };
     // A bias that is not plain f32 flex sends the layer to the autodiff path, never drops out.
     if let (Some(input), Some(weight), Some(bias)) = (flex_f32(&x), flex_f32(&conv.weight.val()), flex_bias(conv)) {
-        return from_flex(flex_conv(input, weight, bias, [padding, stride], activation));
+        return from_flex(flex_conv(input, weight, bias, [padding, stride], activation, true));
     }
     type D = burn::backend::Dispatch;
     let (x, weight) = (x.into_dispatch(), conv.weight.val().into_dispatch());

@@ -148,8 +148,8 @@ pub(crate) fn forward_image(
     epilogue: &Epilogue,
     out: &mut [f32],
 ) {
-    let u = winograd::weight_for(s, weight);
-    forward_image_with(image, weight, u.as_deref(), s, prologue, epilogue, out);
+    let u = winograd::weight_for(s, weight, true);
+    forward_image_with(image, weight, u.as_ref(), s, prologue, epilogue, out);
 }
 
 /// `forward_image` with the Winograd-transformed weight `u` when there is one; a strided
@@ -158,7 +158,7 @@ pub(crate) fn forward_image(
 pub(crate) fn forward_image_with(
     image: &[f32],
     weight: &[f32],
-    u: Option<&[f32]>,
+    u: Option<&winograd::Transformed>,
     s: &ConvShape,
     prologue: Option<Prologue>,
     epilogue: &Epilogue,
@@ -244,17 +244,20 @@ fn gathered(
 
 /// The convolution of `x` ([batch, channels_in, height, width]) with `weight` plus `bias`:
 /// [batch, channels_out, out_height, out_width].
+/// The weight is transformed for this call alone (a gradient's flipped copy).
 pub(crate) fn forward(x: &[f32], weight: &[f32], bias: Option<&[f32]>, s: &ConvShape) -> Vec<f32> {
-    forward_with(x, weight, s, None, &Epilogue::bias(bias, Activation::Identity))
+    forward_with(x, weight, s, None, &Epilogue::bias(bias, Activation::Identity), false)
 }
 
-/// `forward` with a prologue and an epilogue.
+/// `forward` with a prologue and an epilogue; `keep`: the weight's transform kept between calls
+/// (`winograd::weight_for`).
 pub(crate) fn forward_with(
     x: &[f32],
     weight: &[f32],
     s: &ConvShape,
     prologue: Option<Prologue>,
     epilogue: &Epilogue,
+    keep: bool,
 ) -> Vec<f32> {
     let (image_len, out_len) = (s.channels_in * s.height * s.width, s.channels_out * s.out_height() * s.out_width());
     assert_eq!(x.len(), s.batch * image_len, "conv input size");
@@ -262,9 +265,9 @@ pub(crate) fn forward_with(
     if image_len > 0 && out_len > 0 {
         // The Winograd weight transform once for the batch. The images side by side as well as
         // within: a small image is one task, which alone would leave the other threads idle.
-        let u = winograd::weight_for(s, weight);
+        let u = winograd::weight_for(s, weight, keep);
         out.par_chunks_mut(out_len).zip(x.par_chunks(image_len)).for_each(|(dst, image)| {
-            forward_image_with(image, weight, u.as_deref(), s, prologue, epilogue, dst);
+            forward_image_with(image, weight, u.as_ref(), s, prologue, epilogue, dst);
         });
     }
     out
@@ -280,44 +283,85 @@ mod tests {
             .collect()
     }
 
-    /// Winograd's F(2x2, 3x3) against the gathered product on the same image, prologue and
-    /// epilogue: even and odd sizes, a single pixel, a single column, and more channels than
-    /// one transformed block holds (so products accumulate over channel blocks), and none.
+    /// Winograd's F(2x2, 3x3) and F(4x4, 3x3) against the gathered product on the same image,
+    /// prologue and epilogue: sides of every remainder by 2 and 4, a single pixel, a single
+    /// column, and more channels than one transformed block holds (so products accumulate over
+    /// channel blocks), and none. F(4x4, 3x3)'s larger constants round ten times more.
     #[test]
     fn winograd_equals_the_gathered_product() {
-        for (channels_in, channels_out, height, width) in
-            [(3, 2, 4, 4), (5, 7, 7, 9), (2, 3, 1, 1), (4, 3, 6, 1), (300, 5, 5, 6), (16, 33, 33, 18), (0, 2, 3, 3)]
-        {
-            let s = ConvShape { batch: 1, channels_in, channels_out, height, width, kernel: 3, padding: 1, stride: 1 };
-            assert!(winograd::applies(&s));
-            let image = values(channels_in * height * width, 7);
-            let weight = values(channels_out * channels_in * 9, 8);
-            let (scale_in, shift_in) = (values(channels_in, 9), values(channels_in, 10));
-            let shift_out = values(channels_out, 11);
-            for prologue in [None, Some(Prologue { scale: &scale_in, shift: &shift_in })] {
-                let epilogue = Epilogue::bias(Some(&shift_out), Activation::Leaky(0.2));
-                // Zeros, as `forward_with` hands it (the gathered path writes nothing without
-                // input channels); NaN where Winograd must write everything.
-                let mut want = vec![0.0; channels_out * height * width];
-                forward_image_with(&image, &weight, None, &s, prologue, &epilogue, &mut want);
-                let mut got = vec![f32::NAN; want.len()];
-                forward_image(&image, &weight, &s, prologue, &epilogue, &mut got);
-                let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
-                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
-                    assert!((g - w).abs() <= 2e-6 * scale, "{s:?} prologue {} [{i}]: {g} vs {w}", prologue.is_some());
+        for (tile, tolerance) in [(winograd::Tile::Two, 2e-6), (winograd::Tile::Four, 1e-5)] {
+            for (channels_in, channels_out, height, width) in [
+                (3, 2, 4, 4),
+                (5, 7, 7, 9),
+                (2, 3, 1, 1),
+                (4, 3, 6, 1),
+                (300, 5, 5, 6),
+                (16, 33, 33, 18),
+                (3, 4, 13, 22),
+                (7, 5, 19, 35),
+                (0, 2, 3, 3),
+            ] {
+                let s =
+                    ConvShape { batch: 1, channels_in, channels_out, height, width, kernel: 3, padding: 1, stride: 1 };
+                assert!(winograd::applies(&s));
+                let image = values(channels_in * height * width, 7);
+                let weight = values(channels_out * channels_in * 9, 8);
+                let (scale_in, shift_in) = (values(channels_in, 9), values(channels_in, 10));
+                let shift_out = values(channels_out, 11);
+                let u = winograd::weight_with(&s, &weight, tile, false);
+                for prologue in [None, Some(Prologue { scale: &scale_in, shift: &shift_in })] {
+                    let epilogue = Epilogue::bias(Some(&shift_out), Activation::Leaky(0.2));
+                    // Zeros, as `forward_with` hands it (the gathered path writes nothing without
+                    // input channels); NaN where Winograd must write everything.
+                    let mut want = vec![0.0; channels_out * height * width];
+                    forward_image_with(&image, &weight, None, &s, prologue, &epilogue, &mut want);
+                    let mut got = vec![f32::NAN; want.len()];
+                    forward_image_with(&image, &weight, Some(&u), &s, prologue, &epilogue, &mut got);
+                    let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+                    for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                        let prologue = prologue.is_some();
+                        assert!(
+                            (g - w).abs() <= tolerance * scale,
+                            "{tile:?} {s:?} prologue {prologue} [{i}]: {g} vs {w}"
+                        );
+                    }
                 }
             }
         }
     }
 
-    /// A non-finite input value reaches only the Winograd tiles whose 4x4 input window holds
-    /// it: every other output equals the gathered product. The transforms run over all of a
-    /// task's tiles at once with a spare tile at the end of each tile row, which reads the next
-    /// row's first values; its products must never reach the output. Each position in turn,
-    /// on sizes with one task and with several.
+    /// F(4x4, 3x3) for images of two tasks' tiles or more with many channel pairs (DenseNet-161's
+    /// dense layers at 30x40 and up, its decoder); F(2x2, 3x3) for smaller images or few pairs
+    /// (the dense layers at 15x20, every layer of the quickstart's network).
+    #[test]
+    fn large_convolutions_take_the_larger_tile() {
+        let tile = |channels_in, channels_out, height, width| {
+            let s = ConvShape { batch: 1, channels_in, channels_out, height, width, kernel: 3, padding: 1, stride: 1 };
+            winograd::Tile::for_shape(&s)
+        };
+        assert_eq!(tile(192, 48, 30, 40), winograd::Tile::Four);
+        assert_eq!(tile(1488, 552, 30, 40), winograd::Tile::Four);
+        assert_eq!(tile(69, 69, 240, 320), winograd::Tile::Four);
+        assert_eq!(tile(192, 48, 15, 20), winograd::Tile::Two);
+        assert_eq!(tile(48, 12, 128, 128), winograd::Tile::Two);
+        assert_eq!(tile(3, 1, 128, 128), winograd::Tile::Two);
+    }
+
+    /// A non-finite input value reaches only the Winograd tiles whose input window holds it
+    /// (4x4 for F(2x2, 3x3), 6x6 for F(4x4, 3x3)): every other output equals the gathered
+    /// product. The transforms run over all of a task's tiles at once with a spare tile at the
+    /// end of each tile row, which reads the next row's first values; its products must never
+    /// reach the output. Each position in turn, on sizes with one task and with several.
     #[test]
     fn winograd_keeps_a_non_finite_input_in_its_tiles() {
-        for (height, width) in [(6, 7), (40, 9)] {
+        let cases = [
+            (winograd::Tile::Two, 6, 7, vec![]),
+            (winograd::Tile::Two, 40, 9, vec![0, 1, 12, 13, 14, 15, 19, 20, 21, 27, 28, 29, 39]),
+            (winograd::Tile::Four, 9, 11, vec![]),
+            (winograd::Tile::Four, 100, 9, vec![0, 1, 3, 4, 43, 44, 45, 47, 48, 87, 88, 89, 91, 92, 99]),
+        ];
+        for (tile, height, width, edge_rows) in cases {
+            let side = if tile == winograd::Tile::Two { 2 } else { 4 };
             let s = ConvShape {
                 batch: 1,
                 channels_in: 2,
@@ -329,15 +373,13 @@ mod tests {
                 stride: 1,
             };
             let weight = values(3 * 2 * 9, 12);
+            let u = winograd::weight_with(&s, &weight, tile, false);
             let epilogue = Epilogue::bias(None, Activation::Identity);
-            let positions: Vec<(usize, usize)> = if height * width < 100 {
+            let positions: Vec<(usize, usize)> = if edge_rows.is_empty() {
                 (0..height).flat_map(|y| (0..width).map(move |x| (y, x))).collect()
             } else {
                 // Rows next to the tasks' edges and the first and last columns.
-                [0, 1, 12, 13, 14, 15, 19, 20, 21, 27, 28, 29, 39]
-                    .iter()
-                    .flat_map(|&y| [0, 1, width - 1].map(|x| (y, x)))
-                    .collect()
+                edge_rows.iter().flat_map(|&y| [0, 1, width - 1].map(|x| (y, x))).collect()
             };
             for (y, x) in positions {
                 let mut image = values(2 * height * width, 13);
@@ -345,14 +387,17 @@ mod tests {
                 let mut want = vec![0.0; 3 * height * width];
                 forward_image_with(&image, &weight, None, &s, None, &epilogue, &mut want);
                 let mut got = vec![f32::NAN; want.len()];
-                forward_image(&image, &weight, &s, None, &epilogue, &mut got);
+                forward_image_with(&image, &weight, Some(&u), &s, None, &epilogue, &mut got);
                 for (i, (g, w)) in got.iter().zip(&want).enumerate() {
                     let (oy, ox) = ((i / width) % height, i % width);
-                    // The 4x4 input window of the tile holding (oy, ox).
-                    let (ty, tx) = (2 * (oy / 2), 2 * (ox / 2));
-                    let in_window = y + 1 >= ty && y <= ty + 2 && x + 1 >= tx && x <= tx + 2;
+                    // The input window of the tile holding (oy, ox): side + 2 values from one before it.
+                    let (ty, tx) = (side * (oy / side), side * (ox / side));
+                    let in_window = y + 1 >= ty && y <= ty + side && x + 1 >= tx && x <= tx + side;
                     if !in_window {
-                        assert!((g - w).abs() <= 1e-5, "{height}x{width}, inf at ({y}, {x}): [{i}] {g} vs {w}");
+                        assert!(
+                            (g - w).abs() <= 1e-5,
+                            "{tile:?} {height}x{width}, inf at ({y}, {x}): [{i}] {g} vs {w}"
+                        );
                     }
                 }
             }
@@ -477,7 +522,7 @@ mod tests {
             for activation in [Activation::Identity, Activation::Relu, Activation::Leaky(0.2)] {
                 let epilogue = Epilogue { scale: Some(&scale_out), shift: Some(&shift_out), activation };
                 let prologue = Prologue { scale: &scale_in, shift: &shift_in };
-                let fused = forward_with(&x, &weight, &s, Some(prologue), &epilogue);
+                let fused = forward_with(&x, &weight, &s, Some(prologue), &epilogue, false);
                 for (i, (f, p)) in fused.iter().zip(&plain).enumerate() {
                     let o = (i / out_plane) % 3;
                     let y = p * scale_out[o] + shift_out[o];

@@ -113,7 +113,7 @@ pub(crate) fn forward(params: &[DenseLayerParams], x: &Tensor<4>) -> Option<Tens
     // The 3x3 weights' Winograd transforms looked up once for the batch, not once per image.
     let transformed: Vec<_> = layers
         .iter()
-        .map(|l| winograd::weight_for(&shape(l.bottleneck, l.growth, l.kernel), slice(&l.conv2)))
+        .map(|l| winograd::weight_for(&shape(l.bottleneck, l.growth, l.kernel), slice(&l.conv2), true))
         .collect();
     // The images side by side as well as within each convolution: at 8x8 and 4x4 a convolution
     // is one task, and the images one after another left the other threads idle.
@@ -134,7 +134,7 @@ pub(crate) fn forward(params: &[DenseLayerParams], x: &Tensor<4>) -> Option<Tens
             forward_image(features, slice(&layer.conv1), &shape(c, m, 1), Some(prologue), &post1, mid);
             let post2 = Epilogue::bias(layer.bias2.as_ref().map(slice), Activation::Identity);
             let conv2 = slice(&layer.conv2);
-            forward_image_with(mid, conv2, u.as_deref(), &shape(m, g, k), None, &post2, &mut rest[..g * hw]);
+            forward_image_with(mid, conv2, u.as_ref(), &shape(m, g, k), None, &post2, &mut rest[..g * hw]);
             c += g;
         }
     });

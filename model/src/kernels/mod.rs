@@ -8,8 +8,8 @@
 //!
 //! - convolutions as large matrix products, forward (`conv_forward`) and backward
 //!   (`gemm_conv`, through a Burn backend extension in `conv`), 3x3 "same" ones by Winograd's
-//!   F(2x2, 3x3) (`winograd`, the small convolutions' transformed weights kept between calls
-//!   in `weight_cache`), strided ones directly from the input dealt into phases (`direct`);
+//!   F(2x2, 3x3) or, on large images, F(4x4, 3x3) (`winograd`, `winograd4`; the transformed
+//!   weights kept between calls in `weight_cache`), strided ones directly from the input dealt into phases (`direct`);
 //! - a dense block's eval-mode forward in one preallocated stack (`dense_block`);
 //! - eval-mode and training-mode batch norm + ReLU in one pass (`norm_relu`, `batch_norm_train`);
 //! - the stem's max pool and a transition's batch norm + ReLU + average pool (`pool`), and the
@@ -52,6 +52,7 @@ mod weight_cache;
 // Matrix products through raw pointers into per-thread buffers and disjoint output rows.
 #[allow(unsafe_code)]
 mod winograd;
+mod winograd4;
 
 pub(crate) use batch_norm_train::norm_relu;
 pub(crate) use conv::conv2d_act;

@@ -1,7 +1,9 @@
 //! The pieces every convolution kernel shares, at the bottom of `kernels/` (nothing here
 //! imports another kernel): a convolution's shape, what rides along before and after it, the
 //! activation that follows it, the matrix product and the pointer that lets rayon tasks write
-//! disjoint parts of one buffer.
+//! disjoint parts of one buffer, and the frame of a Winograd weight transform.
+
+use rayon::prelude::*;
 
 /// What follows a convolution.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -122,7 +124,7 @@ impl<'a> Epilogue<'a> {
 #[derive(Clone, Copy)]
 pub(crate) struct SharedMut(pub(crate) *mut f32);
 // SAFETY: a `SharedMut` is only made from a `&mut [f32]` that outlives the parallel loop using
-// it (`conv_forward::forward_image`, `winograd::forward_image` and `transform_weight`), and each
+// it (`conv_forward::forward_image`, `winograd::forward_image` and `transform_rows`), and each
 // task writes only its own disjoint columns or rows, so sending the pointer to another thread
 // creates no aliasing writes.
 unsafe impl Send for SharedMut {}
@@ -181,4 +183,21 @@ pub(crate) unsafe fn matmul(
             gemm::Parallelism::None,
         )
     }
+}
+
+/// A Winograd-transformed weight (`winograd`, `winograd4`): `products` matrices [channels_out, channels_in], `u[xi * o * c + oc *
+/// c + ic]`, the output channels in parallel, each one's rows computed by `rows(oc, runs)` into
+/// `runs[xi * c + ic]` and copied out whole.
+pub(crate) fn transform_rows(o: usize, c: usize, products: usize, rows: impl Fn(usize, &mut [f32]) + Sync) -> Vec<f32> {
+    let mut u = vec![0.0f32; products * o * c];
+    let dst = SharedMut(u.as_mut_ptr());
+    rayon::prelude::IntoParallelIterator::into_par_iter(0..o).for_each(|oc| {
+        let mut runs = vec![0.0f32; products * c];
+        rows(oc, &mut runs);
+        for (xi, run) in runs.chunks_exact(c.max(1)).enumerate() {
+            // SAFETY: row `oc` of matrix `xi` of `u`, written by this task alone.
+            unsafe { std::ptr::copy_nonoverlapping(run.as_ptr(), dst.at(xi * o * c + oc * c), c) };
+        }
+    });
+    u
 }

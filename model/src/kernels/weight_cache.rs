@@ -1,25 +1,30 @@
-//! Winograd-transformed weights of small convolutions, kept between calls.
+//! Winograd-transformed weights, kept between calls.
 //!
 //! The transform `U = G g Gt` of a 3x3 weight is cheap next to a large convolution but not next
 //! to a small one: on the quickstart's network at batch 1 each dense layer's and decoder block's
-//! transform (a rayon scatter of its own) ran on every forward, about a twentieth of the time
-//! (BENCHMARKS.md). Entries are found by the weight's address and checked against a copy of its
-//! values bit for bit, so a weight that changed in place (training) or a new weight at a reused
-//! address is transformed again, never served stale. Only small weights are kept, and few: the
-//! large network's transforms are a negligible share of its convolutions.
+//! transform (a rayon scatter of its own) ran on every forward, about a twentieth of the time.
+//! Nor is it cheap for a large weight: DenseNet-161's decoder's largest (552 x 1488 x 3 x 3)
+//! transforms into 52 MB for F(2x2, 3x3), 118 MB for F(4x4, 3x3), fresh memory on every call
+//! whose first touch cost 43 and 89 ms of page faults against the convolution's 31 and 22
+//! (BENCHMARKS.md, "F(4x4, 3x3)"). Entries are found by the weight's address and the transform's
+//! kind and checked against a copy of the weight's values bit for bit, so a weight that changed
+//! in place (training) or a new weight at a reused address is transformed again, never served
+//! stale.
 
 use std::sync::{Arc, Mutex};
 
-/// Largest weight kept (values): the quickstart's network's 3x3 weights are under a tenth of it,
-/// DenseNet-161's dense layers' (82,944) are over it.
-const MAX_WEIGHT: usize = 65536;
-/// Entries kept, and the values they hold (weights and transforms, 16 MB): the least recently
-/// used dropped first. A training run, whose weights change every step, keeps no more than this.
-const MAX_ENTRIES: usize = 64;
-const MAX_VALUES: usize = 4 << 20;
+/// Largest weight kept (values): DenseNet-161's decoder's largest is under half of it.
+const MAX_WEIGHT: usize = 16 << 20;
+/// Entries kept, and the values they hold (weights and transforms, 512 MiB, of which the paper's
+/// network at 480x640 takes 364): the least recently used dropped first. A training run,
+/// whose weights change every step, keeps no more than this.
+const MAX_ENTRIES: usize = 256;
+const MAX_VALUES: usize = 128 << 20;
 
 struct Entry {
     address: usize,
+    /// Which transform (the Winograd tile's side): one weight may be kept under each.
+    kind: usize,
     weight: Vec<f32>,
     transformed: Arc<[f32]>,
     used: u64,
@@ -49,19 +54,25 @@ fn same_bits(a: &[f32], b: &[f32]) -> bool {
 }
 
 /// `transform(weight)`, from the cache when this weight (same address, same values) was
-/// transformed before.
-pub(super) fn transformed(weight: &[f32], transform: impl FnOnce() -> Vec<f32>) -> Arc<[f32]> {
-    transformed_in(&CACHE, weight, transform)
+/// transformed before by the transform `kind`.
+pub(super) fn transformed(weight: &[f32], kind: usize, transform: impl FnOnce() -> Vec<f32>) -> Arc<[f32]> {
+    transformed_in(&CACHE, weight, kind, transform)
 }
 
 /// [`transformed`] through `cache`.
-fn transformed_in(cache: &Mutex<Cache>, weight: &[f32], transform: impl FnOnce() -> Vec<f32>) -> Arc<[f32]> {
+fn transformed_in(
+    cache: &Mutex<Cache>,
+    weight: &[f32],
+    kind: usize,
+    transform: impl FnOnce() -> Vec<f32>,
+) -> Arc<[f32]> {
     if weight.len() > MAX_WEIGHT {
         return transform().into();
     }
     let address = weight.as_ptr() as usize;
-    let find =
-        |cache: &Cache| cache.entries.iter().position(|e| e.address == address && e.weight.len() == weight.len());
+    let find = |cache: &Cache| {
+        cache.entries.iter().position(|e| e.address == address && e.kind == kind && e.weight.len() == weight.len())
+    };
     {
         let mut cache = lock(cache);
         cache.clock += 1;
@@ -90,7 +101,7 @@ fn transformed_in(cache: &Mutex<Cache>, weight: &[f32], transform: impl FnOnce()
         let oldest = (0..cache.entries.len()).min_by_key(|&i| cache.entries[i].used).expect("entries left");
         cache.entries.swap_remove(oldest);
     }
-    cache.entries.push(Entry { address, weight: weight.to_vec(), transformed: transformed.clone(), used: now });
+    cache.entries.push(Entry { address, kind, weight: weight.to_vec(), transformed: transformed.clone(), used: now });
     transformed
 }
 
@@ -104,7 +115,7 @@ mod tests {
     fn a_weight_is_served_from_the_cache_only_while_its_values_are_the_same() {
         // A cache of its own: tests running beside it fill the process's.
         let cache = Mutex::new(Cache { entries: Vec::new(), clock: 0 });
-        let transformed = |w: &[f32], t: &dyn Fn() -> Vec<f32>| transformed_in(&cache, w, t);
+        let transformed = |w: &[f32], t: &dyn Fn() -> Vec<f32>| transformed_in(&cache, w, 2, t);
         let mut weight = vec![1.5f32; 90];
         let calls = std::cell::Cell::new(0);
         let transform = |w: &[f32]| {
@@ -121,6 +132,11 @@ mod tests {
         weight[7] = 0.0;
         let _ = transformed(&weight, &|| transform(&weight));
         assert_eq!(calls.get(), 3);
+        // Another transform of the same weight is kept beside it, and served as its own.
+        let other = transformed_in(&cache, &weight, 4, || vec![9.0; 4]);
+        assert_eq!((calls.get(), &other[..]), (3, &[9.0f32; 4][..]));
+        let again = transformed(&weight, &|| transform(&weight));
+        assert_eq!((calls.get(), again[0]), (3, 3.0));
         let large = vec![1.0f32; MAX_WEIGHT + 1];
         let _ = transformed(&large, &|| transform(&large));
         let _ = transformed(&large, &|| transform(&large));

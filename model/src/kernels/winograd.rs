@@ -1,4 +1,5 @@
-//! 3x3 stride-1 "same" convolutions by Winograd's minimal filtering F(2x2, 3x3).
+//! 3x3 stride-1 "same" convolutions by Winograd's minimal filtering, F(2x2, 3x3) here and
+//! F(4x4, 3x3) for large images (`winograd4`), through one driver.
 //!
 //! Each 2x2 block of outputs comes from a 4x4 tile of the input through 16 element-wise
 //! products instead of 36 multiply-adds: with the input and the weight moved into the
@@ -15,8 +16,9 @@
 use rayon::prelude::*;
 
 use super::shared::{ConvShape, Epilogue, Prologue, SharedMut, column_chunks, matmul};
+use super::winograd4;
 
-/// Transformed input held per thread (16 x channels x tiles, f32): the channel block is cut so
+/// Transformed input held per thread (products x channels x tiles, f32): the channel block is cut so
 /// the block stays about 1 MB.
 const TRANSFORMED_BUDGET: usize = 256 * 1024;
 /// The products' columns (tiles) are padded to a multiple of this, the vector width of the
@@ -38,10 +40,53 @@ struct Buffers {
     split: Vec<f32>,
     /// One output channel's rows of `At M`, two columns per tile (`transform_output`).
     columns: Vec<f32>,
+    /// F(4x4, 3x3)'s input tiles after their first transform (`winograd4::transform_input`).
+    rows: Vec<f32>,
 }
 
 thread_local! {
     static BUFFERS: std::cell::RefCell<Buffers> = std::cell::RefCell::new(Buffers::default());
+}
+
+/// The side of the output block one tile gives: F(2x2, 3x3) or F(4x4, 3x3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Tile {
+    Two,
+    Four,
+}
+
+/// F(4x4, 3x3) takes a convolution whose image holds at least this many of its tiles (two
+/// tasks' worth: fewer, and the larger tile leaves a thread idle) and whose weight holds at least
+/// this many (output, input) channel pairs (fewer, and its larger transforms cost more than the
+/// products it saves): BENCHMARKS.md, "F(4x4, 3x3)".
+const FOUR_MIN_TILES: usize = 2 * MIN_TILES;
+const FOUR_MIN_PAIRS: usize = 1024;
+
+impl Tile {
+    /// The tile for the convolution `s` (which `applies`).
+    pub(crate) fn for_shape(s: &ConvShape) -> Tile {
+        let tiles = s.height.div_ceil(4) * s.width.div_ceil(4);
+        if tiles >= FOUR_MIN_TILES && s.channels_in * s.channels_out >= FOUR_MIN_PAIRS { Tile::Four } else { Tile::Two }
+    }
+
+    /// Outputs along each side of a tile.
+    fn outputs(self) -> usize {
+        match self {
+            Tile::Two => 2,
+            Tile::Four => 4,
+        }
+    }
+
+    /// Element-wise products per tile: the tile's input side squared.
+    fn products(self) -> usize {
+        (self.outputs() + 2).pow(2)
+    }
+}
+
+/// A 3x3 weight in the transformed domain of its tile.
+pub(crate) struct Transformed {
+    tile: Tile,
+    u: std::sync::Arc<[f32]>,
 }
 
 /// Whether this path computes the convolution `s`: 3x3, stride 1, padding 1.
@@ -49,12 +94,26 @@ pub(crate) fn applies(s: &ConvShape) -> bool {
     s.kernel == 3 && s.stride == 1 && s.padding == 1 && s.height > 0 && s.width > 0
 }
 
-/// The transformed weight when this path computes the convolution `s` (kept between calls for
-/// small weights, `weight_cache`); `None` when the gathered product must (the one place that
-/// decides between them).
-pub(crate) fn weight_for(s: &ConvShape, weight: &[f32]) -> Option<std::sync::Arc<[f32]>> {
-    applies(s)
-        .then(|| super::weight_cache::transformed(weight, || transform_weight(weight, s.channels_out, s.channels_in)))
+/// The transformed weight when this path computes the convolution `s`; `None` when the
+/// gathered product must (the one place that decides between them). `keep`: kept between calls
+/// (`weight_cache`), for a network's weights; a training step's, which change every step, and
+/// a gradient's flipped copy are transformed and dropped, through F(2x2, 3x3) alone: F(4x4,
+/// 3x3)'s transform, 2.25 times larger, made DenseNet-161's training step slower when it ran
+/// on every call (BENCHMARKS.md, "F(4x4, 3x3)").
+pub(crate) fn weight_for(s: &ConvShape, weight: &[f32], keep: bool) -> Option<Transformed> {
+    let tile = if keep { Tile::for_shape(s) } else { Tile::Two };
+    applies(s).then(|| weight_with(s, weight, tile, keep))
+}
+
+/// `weight_for` through a given tile.
+pub(crate) fn weight_with(s: &ConvShape, weight: &[f32], tile: Tile, keep: bool) -> Transformed {
+    let (o, c) = (s.channels_out, s.channels_in);
+    let transform = || match tile {
+        Tile::Two => transform_weight(weight, o, c),
+        Tile::Four => winograd4::transform_weight(weight, o, c),
+    };
+    let u = if keep { super::weight_cache::transformed(weight, tile.outputs(), transform) } else { transform().into() };
+    Transformed { tile, u }
 }
 
 /// `U = G g Gt` for every (output, input) channel pair, as 16 matrices [channels_out,
@@ -62,10 +121,7 @@ pub(crate) fn weight_for(s: &ConvShape, weight: &[f32]) -> Option<std::sync::Arc
 fn transform_weight(weight: &[f32], channels_out: usize, channels_in: usize) -> Vec<f32> {
     let (o, c) = (channels_out, channels_in);
     assert_eq!(weight.len(), o * c * 9, "3x3 weight size");
-    let mut u = vec![0.0f32; 16 * o * c];
-    let dst = SharedMut(u.as_mut_ptr());
-    (0..o).into_par_iter().for_each(|oc| {
-        let mut runs = vec![0.0f32; 16 * c];
+    super::shared::transform_rows(o, c, 16, |oc, runs| {
         for (ic, g) in weight[oc * c * 9..][..c * 9].chunks_exact(9).enumerate() {
             // G g: 4 rows of 3.
             let mut gg = [[0.0f32; 3]; 4];
@@ -85,12 +141,7 @@ fn transform_weight(weight: &[f32], channels_out: usize, channels_in: usize) -> 
                 runs[(xi + 3) * c + ic] = r[2];
             }
         }
-        for (xi, run) in runs.chunks_exact(c.max(1)).enumerate() {
-            // SAFETY: row `oc` of matrix `xi` of `u`, written by this task alone.
-            unsafe { std::ptr::copy_nonoverlapping(run.as_ptr(), dst.at(xi * o * c + oc * c), c) };
-        }
-    });
-    u
+    })
 }
 
 /// One input row split into the values a row of tiles reads: `odd[t] = x[2t - 1]` and
@@ -246,10 +297,29 @@ fn output_columns<'a>(e: [(&'a [f32], &'a [f32], &'a [f32]); 4], sign: f32, left
     }
 }
 
-/// The convolution of one image ([channels_in, height, width]) with `u` from
+/// The convolution of one image ([channels_in, height, width]) with `t` from
 /// `weight_for` into `out` ([channels_out, height * width]), with the prologue and
 /// epilogue. Requires `applies(s)`.
 pub(crate) fn forward_image(
+    image: &[f32],
+    t: &Transformed,
+    s: &ConvShape,
+    prologue: Option<Prologue>,
+    epilogue: &Epilogue,
+    out: &mut [f32],
+) {
+    assert!(applies(s), "Winograd's F(2x2, 3x3) and F(4x4, 3x3) take 3x3 stride-1 padding-1 convolutions");
+    assert_eq!(t.u.len(), t.tile.products() * s.channels_out * s.channels_in, "transformed weight size");
+    match t.tile {
+        Tile::Two => forward_tiles::<2>(image, &t.u, s, prologue, epilogue, out),
+        Tile::Four => forward_tiles::<4>(image, &t.u, s, prologue, epilogue, out),
+    }
+}
+
+/// `forward_image` through tiles of `SIDE` outputs a side: one copy of the driver for each, so
+/// that each inlines its own transforms (one driver for both ran the quickstart's network,
+/// which takes F(2x2, 3x3) alone, 3-7 % slower).
+fn forward_tiles<const SIDE: usize>(
     image: &[f32],
     u: &[f32],
     s: &ConvShape,
@@ -257,54 +327,65 @@ pub(crate) fn forward_image(
     epilogue: &Epilogue,
     out: &mut [f32],
 ) {
-    assert!(applies(s), "Winograd F(2x2, 3x3) takes 3x3 stride-1 padding-1 convolutions");
     let (c, o, (h, w)) = (s.channels_in, s.channels_out, (s.height, s.width));
+    let (side, products) = (SIDE, (SIDE + 2) * (SIDE + 2));
     assert_eq!(image.len(), c * h * w, "conv input size");
-    assert_eq!(u.len(), 16 * o * c, "transformed weight size");
     assert_eq!(out.len(), o * h * w, "conv output size");
-    let (tile_rows, tw) = (h.div_ceil(2), w.div_ceil(2));
+    let (tile_rows, tw) = (h.div_ceil(side), w.div_ceil(side));
     let min_rows = MIN_TILES.div_ceil(tw).max(1);
     let dst = SharedMut(out.as_mut_ptr());
     column_chunks(tile_rows, min_rows, (MAX_TILES / tw).max(min_rows)).into_par_iter().for_each(|rows| {
         // Each tile row has a spare tile at its end (see `transform_input`).
         let row_len = tw + 1;
         let nt = (rows.len() * row_len).next_multiple_of(PRODUCT_COLUMNS);
-        let block = (TRANSFORMED_BUDGET / (16 * nt)).clamp(1, c.max(1));
-        BUFFERS.with_borrow_mut(|Buffers { v, m, split, columns }| {
-            v.resize(v.len().max(16 * block * nt), 0.0);
-            m.resize(m.len().max(16 * o * nt), 0.0);
+        let block = (TRANSFORMED_BUDGET / (products * nt)).clamp(1, c.max(1));
+        BUFFERS.with_borrow_mut(|Buffers { v, m, split, columns, rows: scratch }| {
+            v.resize(v.len().max(products * block * nt), 0.0);
+            m.resize(m.len().max(products * o * nt), 0.0);
             if c == 0 {
                 // No products to write them: a convolution of nothing is zero.
-                m[..16 * o * nt].fill(0.0);
+                m[..products * o * nt].fill(0.0);
             }
-            // The task's input rows 2 * rows.start - 1 ..= 2 * rows.end, each split once, by
-            // parity: [even rows' even, even rows' odd, odd rows' even, odd rows' odd] columns,
-            // then zeros, which the spare tiles up to `nt` read (their products are computed
-            // and never read; zeros keep them finite whatever the buffer held before).
+            // The task's input rows side * rows.start - 1 ..= side * rows.end, each split once
+            // into its column phases and grouped by row phase: run (row phase q, column phase
+            // k) at `(side * q + k) * len`, then zeros, which the spare tiles up to `nt` read
+            // (their products are computed and never read; zeros keep them finite whatever the
+            // buffer held before). F(2x2, 3x3)'s two phases are [even, odd] columns.
             let (rows_len, len) = ((rows.len() + 1) * row_len, row_len + 1 + nt);
-            split.resize(split.len().max(4 * len), 0.0);
-            split[..4 * len].chunks_exact_mut(len).for_each(|parity| parity[rows_len..].fill(0.0));
+            let runs = side * side;
+            split.resize(split.len().max(runs * len), 0.0);
+            split[..runs * len].chunks_exact_mut(len).for_each(|run| run[rows_len..].fill(0.0));
             for c0 in (0..c).step_by(block) {
                 let channels = c0..(c0 + block).min(c);
                 let stride = channels.len() * nt;
                 for (cl, ic) in channels.clone().enumerate() {
                     let plane = &image[ic * h * w..][..h * w];
                     let affine = prologue.map(|q| (q.scale[ic], q.shift[ic]));
-                    for r in 0..2 * rows.len() + 2 {
-                        let y = (2 * rows.start + r).checked_sub(1).filter(|y| *y < h);
-                        let at = (r % 2) * 2 * len + (r / 2) * row_len;
-                        let (even, odd) = split[at..].split_at_mut(len);
-                        split_row(y.map(|y| &plane[y * w..][..w]), affine, &mut even[..row_len], &mut odd[..row_len]);
+                    for r in 0..side * rows.len() + 2 {
+                        let y = (side * rows.start + r).checked_sub(1).filter(|y| *y < h);
+                        let row = y.map(|y| &plane[y * w..][..w]);
+                        let (group, at) = (&mut split[(r % side) * side * len..], (r / side) * row_len);
+                        if SIDE == 2 {
+                            let (even, odd) = group.split_at_mut(len);
+                            split_row(row, affine, &mut even[at..][..row_len], &mut odd[at..][..row_len]);
+                        } else {
+                            winograd4::split_row(row, affine, group, len, at, row_len);
+                        }
                     }
-                    let parity = |p: usize| {
-                        let (even, odd) = split[2 * p * len..][..2 * len].split_at(len);
-                        [even, odd]
-                    };
-                    transform_input([parity(0), parity(1)], row_len, nt, &mut v[cl * nt..], stride);
+                    let v = &mut v[cl * nt..];
+                    if SIDE == 2 {
+                        let parity = |p: usize| {
+                            let (even, odd) = split[2 * p * len..][..2 * len].split_at(len);
+                            [even, odd]
+                        };
+                        transform_input([parity(0), parity(1)], row_len, nt, v, stride);
+                    } else {
+                        winograd4::transform_input(split, len, row_len, nt, v, stride, scratch);
+                    }
                 }
-                for xi in 0..16 {
-                    // SAFETY: `m` holds 16 [o, nt] products, `v` 16 [channels, nt] blocks and
-                    // `u` 16 [o, c] matrices whose columns `c0..` this block reads.
+                for xi in 0..products {
+                    // SAFETY: `m` holds `products` [o, nt] products, `v` as many [channels, nt]
+                    // blocks and `u` as many [o, c] matrices whose columns `c0..` this block reads.
                     unsafe {
                         matmul(
                             [o, nt, channels.len()],
@@ -319,11 +400,15 @@ pub(crate) fn forward_image(
                     }
                 }
             }
-            let (y0, y1) = (2 * rows.start, (2 * rows.end).min(h));
+            let (y0, y1) = (side * rows.start, (side * rows.end).min(h));
             for oc in 0..o {
                 // SAFETY: rows `y0..y1` of output channel `oc` belong to this task alone.
                 let band = unsafe { std::slice::from_raw_parts_mut(dst.at(oc * h * w + y0 * w), (y1 - y0) * w) };
-                transform_output(&m[oc * nt..], o * nt, row_len, band, w, columns);
+                if SIDE == 2 {
+                    transform_output(&m[oc * nt..], o * nt, row_len, band, w, columns);
+                } else {
+                    winograd4::transform_output(&m[oc * nt..], o * nt, row_len, band, w, columns);
+                }
                 if !epilogue.is_identity() {
                     epilogue.apply(oc, band);
                 }
