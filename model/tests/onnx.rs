@@ -53,6 +53,23 @@ fn tract_runs_the_export_as_burn_does_at_any_size_and_batch() {
     }
 }
 
+/// Large 3x3 convolutions run through Winograd's F(4x4, 3x3) in flex's kernels (the image
+/// holding 64 of its tiles or more, the weight 1,024 channel pairs or more): the `small` preset
+/// at 128x128 takes it in dense block 1 (64 -> 16 channels at 32x32) and decoder block 3's first
+/// convolution (80 -> 16 at 32x32), and F(2x2, 3x3) everywhere else; at 144x132 too, whose
+/// sides no tile divides. tract, which has no Winograd path of ours, is the reference.
+#[test]
+fn the_larger_winograd_tile_gives_tracts_output() {
+    let device = model::backend::default_device();
+    device.seed(12);
+    let config = DenseDepthConfig::new(DenseNetConfig::small());
+    let net = config.init(&device);
+    let bytes = model::onnx::export(&net, &bundle_file(&config)).unwrap();
+    for shape in [[1, 3, 128, 128], [2, 3, 144, 132]] {
+        check(&net, &bytes, shape, "small");
+    }
+}
+
 #[test]
 fn the_metadata_says_how_to_feed_and_read_the_model() {
     let device = model::backend::default_device();
