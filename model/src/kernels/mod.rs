@@ -13,7 +13,8 @@
 //! - a dense block's eval-mode forward in one preallocated stack (`dense_block`);
 //! - eval-mode and training-mode batch norm + ReLU in one pass (`norm_relu`, `batch_norm_train`);
 //! - the stem's max pool and a transition's batch norm + ReLU + average pool (`pool`), and the
-//!   decoder's upsample + concatenation (`upsample`).
+//!   decoder's upsample + concatenation (`upsample`), written once or read row by row by the
+//!   convolution after it.
 
 use burn::nn::BatchNorm;
 use burn::nn::conv::Conv2d;
@@ -59,7 +60,7 @@ pub(crate) use conv::conv2d_act;
 pub(crate) use norm_relu::inference_affine;
 pub(crate) use pool::{max_pool2d, norm_relu_avg_pool2};
 pub use shared::Activation;
-pub(crate) use upsample::{taps as bilinear_taps, upsample_concat};
+pub(crate) use upsample::{taps as bilinear_taps, upsample_concat, upsample_concat_conv};
 
 /// What the dense-block kernel needs of one dense layer: BN-ReLU-Conv1x1-BN-ReLU-Conv, where the
 /// second batch norm may already be folded into the first convolution (`norm2` is `None`).

@@ -201,3 +201,25 @@ pub(crate) fn transform_rows(o: usize, c: usize, products: usize, rows: impl Fn(
     });
     u
 }
+
+/// A convolution's input read row by row ([channels, height, width]): the kernels that take it
+/// read each row once per task, so an input that is computed (an upsampled and concatenated
+/// one, `upsample::upsample_concat_conv`) need never be written whole.
+pub(crate) trait InputRows: Sync {
+    /// Row `y` of channel `channel` (`width` values), computed into `scratch` where it must be.
+    fn row<'a>(&'a self, channel: usize, y: usize, scratch: &'a mut Vec<f32>) -> &'a [f32];
+}
+
+/// An input held whole: `image` [channels, height, width].
+pub(crate) struct Planes<'a> {
+    pub(crate) image: &'a [f32],
+    pub(crate) height: usize,
+    pub(crate) width: usize,
+}
+
+impl InputRows for Planes<'_> {
+    #[inline(always)]
+    fn row<'a>(&'a self, channel: usize, y: usize, _: &'a mut Vec<f32>) -> &'a [f32] {
+        &self.image[(channel * self.height + y) * self.width..][..self.width]
+    }
+}

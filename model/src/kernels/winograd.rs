@@ -15,7 +15,7 @@
 
 use rayon::prelude::*;
 
-use super::shared::{ConvShape, Epilogue, Prologue, SharedMut, column_chunks, matmul};
+use super::shared::{ConvShape, Epilogue, InputRows, Planes, Prologue, SharedMut, column_chunks, matmul};
 use super::winograd4;
 
 /// Transformed input held per thread (products x channels x tiles, f32): the channel block is cut so
@@ -42,6 +42,8 @@ struct Buffers {
     columns: Vec<f32>,
     /// F(4x4, 3x3)'s input tiles after their first transform (`winograd4::transform_input`).
     rows: Vec<f32>,
+    /// An input row the input computes when read (`InputRows::row`).
+    line: Vec<f32>,
 }
 
 thread_local! {
@@ -308,19 +310,32 @@ pub(crate) fn forward_image(
     epilogue: &Epilogue,
     out: &mut [f32],
 ) {
+    assert_eq!(image.len(), s.channels_in * s.height * s.width, "conv input size");
+    forward_rows(&Planes { image, height: s.height, width: s.width }, t, s, prologue, epilogue, out);
+}
+
+/// `forward_image` with its input's rows read through `input` ([channels_in, height, width]).
+pub(crate) fn forward_rows<I: InputRows>(
+    input: &I,
+    t: &Transformed,
+    s: &ConvShape,
+    prologue: Option<Prologue>,
+    epilogue: &Epilogue,
+    out: &mut [f32],
+) {
     assert!(applies(s), "Winograd's F(2x2, 3x3) and F(4x4, 3x3) take 3x3 stride-1 padding-1 convolutions");
     assert_eq!(t.u.len(), t.tile.products() * s.channels_out * s.channels_in, "transformed weight size");
     match t.tile {
-        Tile::Two => forward_tiles::<2>(image, &t.u, s, prologue, epilogue, out),
-        Tile::Four => forward_tiles::<4>(image, &t.u, s, prologue, epilogue, out),
+        Tile::Two => forward_tiles::<2, I>(input, &t.u, s, prologue, epilogue, out),
+        Tile::Four => forward_tiles::<4, I>(input, &t.u, s, prologue, epilogue, out),
     }
 }
 
 /// `forward_image` through tiles of `SIDE` outputs a side: one copy of the driver for each, so
 /// that each inlines its own transforms (one driver for both ran the quickstart's network,
 /// which takes F(2x2, 3x3) alone, 3-7 % slower).
-fn forward_tiles<const SIDE: usize>(
-    image: &[f32],
+fn forward_tiles<const SIDE: usize, I: InputRows>(
+    input: &I,
     u: &[f32],
     s: &ConvShape,
     prologue: Option<Prologue>,
@@ -329,7 +344,6 @@ fn forward_tiles<const SIDE: usize>(
 ) {
     let (c, o, (h, w)) = (s.channels_in, s.channels_out, (s.height, s.width));
     let (side, products) = (SIDE, (SIDE + 2) * (SIDE + 2));
-    assert_eq!(image.len(), c * h * w, "conv input size");
     assert_eq!(out.len(), o * h * w, "conv output size");
     let (tile_rows, tw) = (h.div_ceil(side), w.div_ceil(side));
     let min_rows = MIN_TILES.div_ceil(tw).max(1);
@@ -339,7 +353,7 @@ fn forward_tiles<const SIDE: usize>(
         let row_len = tw + 1;
         let nt = (rows.len() * row_len).next_multiple_of(PRODUCT_COLUMNS);
         let block = (TRANSFORMED_BUDGET / (products * nt)).clamp(1, c.max(1));
-        BUFFERS.with_borrow_mut(|Buffers { v, m, split, columns, rows: scratch }| {
+        BUFFERS.with_borrow_mut(|Buffers { v, m, split, columns, rows: scratch, line }| {
             v.resize(v.len().max(products * block * nt), 0.0);
             m.resize(m.len().max(products * o * nt), 0.0);
             if c == 0 {
@@ -359,11 +373,10 @@ fn forward_tiles<const SIDE: usize>(
                 let channels = c0..(c0 + block).min(c);
                 let stride = channels.len() * nt;
                 for (cl, ic) in channels.clone().enumerate() {
-                    let plane = &image[ic * h * w..][..h * w];
                     let affine = prologue.map(|q| (q.scale[ic], q.shift[ic]));
                     for r in 0..side * rows.len() + 2 {
                         let y = (side * rows.start + r).checked_sub(1).filter(|y| *y < h);
-                        let row = y.map(|y| &plane[y * w..][..w]);
+                        let row = y.map(|y| input.row(ic, y, line));
                         let (group, at) = (&mut split[(r % side) * side * len..], (r / side) * row_len);
                         if SIDE == 2 {
                             let (even, odd) = group.split_at_mut(len);

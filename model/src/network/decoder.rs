@@ -33,9 +33,13 @@ impl UpBlock {
     }
 
     pub fn forward(&self, x: Tensor<4>, skip: Tensor<4>, mode: Upsample) -> Tensor<4> {
-        let x = upsample_concat(x, skip, mode);
-        let x = conv2d_act(&self.conv_a, x, Activation::Leaky(LEAKY_SLOPE));
-        conv2d_act(&self.conv_b, x, Activation::Leaky(LEAKY_SLOPE))
+        let leaky = Activation::Leaky(LEAKY_SLOPE);
+        // On plain flex the first convolution reads the upsampled concatenation row by row.
+        let fused = (mode == Upsample::Native)
+            .then(|| crate::kernels::upsample_concat_conv(&x, &skip, &self.conv_a, leaky))
+            .flatten();
+        let x = fused.unwrap_or_else(|| conv2d_act(&self.conv_a, upsample_concat(x, skip, mode), leaky));
+        conv2d_act(&self.conv_b, x, leaky)
     }
 }
 
