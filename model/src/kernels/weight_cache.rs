@@ -4,9 +4,9 @@
 //! to a small one: on the quickstart's network at batch 1 each dense layer's and decoder block's
 //! transform (a rayon scatter of its own) ran on every forward, about a twentieth of the time.
 //! Nor is it cheap for a large weight: DenseNet-161's decoder's largest (552 x 1488 x 3 x 3)
-//! transforms into 52 MB for F(2x2, 3x3), 118 MB for F(4x4, 3x3), fresh memory on every call
-//! whose first touch cost 43 and 89 ms of page faults against the convolution's 31 and 22
-//! (BENCHMARKS.md, "F(4x4, 3x3)"). Entries are found by the weight's address and the transform's
+//! transforms into 52 MB for F(2x2, 3x3), 118 MB for F(4x4, 3x3), fresh memory on every call:
+//! the transform took 43 and 89 ms, mostly the page faults of that memory's first touch, against
+//! 31 and 26 ms for the rest of the convolution (BENCHMARKS.md, "F(4x4, 3x3)"). Entries are found by the weight's address and the transform's
 //! kind and checked against a copy of the weight's values bit for bit, so a weight that changed
 //! in place (training) or a new weight at a reused address is transformed again, never served
 //! stale.
