@@ -14,6 +14,7 @@ use model::{DenseDepthConfig, DepthLossConfig};
 use train::data::{DepthBatcher, DepthItem};
 use train::parallel::DataParallel;
 
+use crate::ort_peer::{OrtPeer, interleave};
 use crate::timing::time_ms;
 
 #[derive(clap::Args)]
@@ -120,15 +121,42 @@ pub fn run(args: Args) -> Result<()> {
             d.sync().expect("device failed");
         }
     };
+    let run_peers = |p: Peer| args.python != "none" && args.peers.contains(&p);
+    // ONNX Runtime on the same exported network (one model for every batch size: the batch is
+    // free in the graph), what a user would run instead of us on a CPU, its runs alternated
+    // with flex's.
+    let onnx_dir = tempfile::tempdir()?;
+    let mut ort_peer = if on_cpu && run_peers(Peer::Onnxruntime) {
+        let onnx = onnx_dir.path().join("densedepth.onnx");
+        std::fs::write(&onnx, model::onnx::export(&config.init(&device), &model_bundle_file(&config, [h, w]))?)?;
+        Some(OrtPeer::start(&args.python, &onnx.display().to_string(), channels, [h, w], threads)?)
+    } else {
+        None
+    };
+    let mut ort: Vec<(usize, Summary)> = Vec::new();
     let mut rows = Vec::new();
     for &batch in &args.batches {
         // Inference as `infer` runs it: eval mode, no autodiff, BatchNorms folded.
         let net = config.init(&device).folded();
         let images = Tensor::<4>::random([batch, channels, h, w], Distribution::Uniform(0.0, 1.0), &device);
-        let forward = time_ms(args.reps, || {
+        let run = || {
             let out = net.forward(images.clone());
             let _ = out.into_data();
-        });
+        };
+        let forward = match ort_peer.as_mut() {
+            Some(peer) => {
+                let once = || crate::timing::once(run).0 * 1e3;
+                let both = interleave(args.reps, once, || peer.forward_ms(batch))?;
+                println!(
+                    "batch {batch}: flex and ONNX Runtime {} alternately: ratio of each pair {}",
+                    peer.version,
+                    both.ratio.median_and_quartiles()
+                );
+                ort.push((batch, both.peer));
+                both.ours
+            }
+            None => time_ms(args.reps, run),
+        };
         // Where the forward time goes: the encoder alone (the decoder is the rest), called as
         // `DenseDepth::forward` calls it, from inside rayon's pool.
         let encoder_ms = time_ms(args.reps, || {
@@ -204,8 +232,6 @@ pub fn run(args: Args) -> Result<()> {
 
     let mut peer: Vec<(usize, Summary, Times)> = Vec::new();
     let mut peer_device = String::from("cpu");
-    let mut ort: Vec<(usize, Summary)> = Vec::new();
-    let run_peers = |p: Peer| args.python != "none" && args.peers.contains(&p);
     let batches = args.batches.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(",");
     let [hs, ws, reps, threads, channels_s] = [h, w, args.reps, threads, channels].map(|v| v.to_string());
     let common = ["--height", &hs, "--width", &ws, "--batches", &batches, "--reps", &reps, "--threads", &threads];
@@ -229,24 +255,6 @@ pub fn run(args: Args) -> Result<()> {
             }
         }
     }
-    if on_cpu && run_peers(Peer::Onnxruntime) {
-        // ONNX Runtime on the same exported network (one model for every batch size: the
-        // batch is free in the graph), what a user would run instead of us on a CPU.
-        let dir = tempfile::tempdir()?;
-        let onnx = dir.path().join("densedepth.onnx");
-        let net = config.init(&device);
-        let file = model_bundle_file(&config, [h, w]);
-        std::fs::write(&onnx, model::onnx::export(&net, &file)?)?;
-        let onnx = onnx.display().to_string();
-        let mut ort_args = vec!["--model", onnx.as_str()];
-        ort_args.extend(&common);
-        for line in run_peer(&args.python, "onnx_runtime.py", &ort_args)? {
-            if let (Some(batch), Some(f)) = (field(&line, "batch="), times(&line, "forward")) {
-                ort.push((batch as usize, f));
-            }
-        }
-    }
-
     println!();
     let peer_name = if peer_device == "cpu" { "PyTorch".to_string() } else { format!("PyTorch {peer_device}") };
     let ms = |v: Option<&Summary>| v.map_or("-".to_string(), Summary::median_and_quartiles);

@@ -17,6 +17,7 @@ mod bench_register;
 mod bench_render;
 mod bench_table;
 mod fuzz;
+mod ort_peer;
 mod quickstart;
 mod timing;
 
