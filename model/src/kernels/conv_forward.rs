@@ -276,6 +276,7 @@ pub(crate) fn forward_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::shared::Planes;
 
     fn values(n: usize, seed: u32) -> Vec<f32> {
         (0..n)
@@ -324,6 +325,40 @@ mod tests {
                             (g - w).abs() <= tolerance * scale,
                             "{tile:?} {s:?} prologue {prologue} [{i}]: {g} vs {w}"
                         );
+                    }
+                }
+            }
+        }
+    }
+
+    /// Each vector width this CPU has gives the baseline's bits, through both tiles, with and
+    /// without the prologue, over images of several tasks and of a remainder in both directions.
+    #[test]
+    fn every_vector_width_gives_the_same_bits() {
+        let kernels = direct::Kernel::each_detected();
+        if kernels.is_empty() {
+            eprintln!("no vector kernel on this CPU: nothing to compare");
+        }
+        for tile in [winograd::Tile::Two, winograd::Tile::Four] {
+            for (channels_in, channels_out, height, width) in [(40, 33, 61, 50), (5, 3, 9, 7)] {
+                let s =
+                    ConvShape { batch: 1, channels_in, channels_out, height, width, kernel: 3, padding: 1, stride: 1 };
+                let image = values(channels_in * height * width, 21);
+                let weight = values(channels_out * channels_in * 9, 22);
+                let (scale_in, shift_in) = (values(channels_in, 23), values(channels_in, 24));
+                let shift_out = values(channels_out, 25);
+                let u = winograd::weight_with(&s, &weight, tile, false);
+                let planes = Planes { image: &image, height, width };
+                for prologue in [None, Some(Prologue { scale: &scale_in, shift: &shift_in })] {
+                    let epilogue = Epilogue::bias(Some(&shift_out), Activation::Leaky(0.2));
+                    let mut want = vec![f32::NAN; channels_out * height * width];
+                    winograd::forward_rows(None, &planes, &u, &s, prologue, &epilogue, &mut want);
+                    assert!(want.iter().all(|v| v.is_finite()));
+                    for &kernel in &kernels {
+                        let mut got = vec![f32::NAN; want.len()];
+                        winograd::forward_rows(Some(kernel), &planes, &u, &s, prologue, &epilogue, &mut got);
+                        let same = got.iter().zip(&want).all(|(g, w)| g.to_bits() == w.to_bits());
+                        assert!(same, "{kernel:?} {tile:?} {s:?} prologue {}", prologue.is_some());
                     }
                 }
             }

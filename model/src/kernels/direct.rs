@@ -87,7 +87,7 @@ pub(crate) enum Kernel {
 impl Kernel {
     /// This CPU's kernel, if it has one with fused multiply-add: the widest. Asked once per
     /// process, not on every convolution.
-    fn detect() -> Option<Kernel> {
+    pub(crate) fn detect() -> Option<Kernel> {
         static DETECTED: std::sync::OnceLock<Option<Kernel>> = std::sync::OnceLock::new();
         *DETECTED.get_or_init(|| Kernel::each_detected().into_iter().next())
     }

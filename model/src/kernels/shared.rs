@@ -105,6 +105,7 @@ impl<'a> Epilogue<'a> {
         self.scale.is_none() && self.shift.is_none() && self.activation == Activation::Identity
     }
 
+    #[inline(always)]
     pub(crate) fn apply(&self, channel: usize, row: &mut [f32]) {
         let scale = self.scale.map_or(1.0, |s| s[channel]);
         let shift = self.shift.map_or(0.0, |s| s[channel]);

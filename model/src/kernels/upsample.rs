@@ -11,6 +11,7 @@ use burn::tensor::Tensor;
 use rayon::prelude::*;
 
 use super::conv::{flex_bias, gemm_padding};
+use super::direct::Kernel;
 use super::flex::{contiguous, flex_f32, flex_tensor, from_flex, slice};
 use super::shared::{Activation, ConvShape, Epilogue, InputRows};
 use super::winograd;
@@ -84,6 +85,7 @@ struct UpsampledConcat<'a> {
 }
 
 impl InputRows for UpsampledConcat<'_> {
+    #[inline(always)]
     fn row<'a>(&'a self, channel: usize, y: usize, scratch: &'a mut Vec<f32>) -> &'a [f32] {
         let ([h, w], [oh, ow]) = (self.hw, self.out_hw);
         if channel >= self.channels {
@@ -144,7 +146,7 @@ pub(crate) fn upsample_concat_conv(
             rows: &rows,
             cols: &cols,
         };
-        winograd::forward_rows(&input, &u, &s, None, &epilogue, dst);
+        winograd::forward_rows(Kernel::detect(), &input, &u, &s, None, &epilogue, dst);
     });
     Some(from_flex(flex_tensor(out, &[n, o, oh, ow])))
 }

@@ -15,12 +15,21 @@
 
 use rayon::prelude::*;
 
+use super::direct::Kernel;
 use super::shared::{ConvShape, Epilogue, InputRows, Planes, Prologue, SharedMut, column_chunks, matmul};
 use super::winograd4;
 
 /// Transformed input held per thread (products x channels x tiles, f32): the channel block is cut so
 /// the block stays about 1 MB.
 const TRANSFORMED_BUDGET: usize = 256 * 1024;
+/// The same for F(4x4, 3x3), 16 MB: enough for every channel of DenseNet-161's convolutions in
+/// one block, so each of the 36 products is one matrix product over all input channels, its
+/// output written once. Cut at 1 MB, the products of a large task (up to 2.5 MB in the decoder's
+/// last block) were read and written again for every block of 28 channels, from beyond the
+/// core's cache: the decoder's blocks took 1.2-1.6x their time now (BENCHMARKS.md, "Products
+/// over every channel at once"). F(2x2, 3x3), whose products are smaller, keeps the small
+/// block, and with it the quickstart's figures to the last bit.
+const TRANSFORMED_BUDGET_FOUR: usize = 4 * 1024 * 1024;
 /// The products' columns (tiles) are padded to a multiple of this, the vector width of the
 /// widest product kernel: at any other count the `gemm` crate packs a copy of the transformed
 /// input into a buffer it allocates on every call.
@@ -149,6 +158,7 @@ fn transform_weight(weight: &[f32], channels_out: usize, channels_in: usize) -> 
 /// One input row split into the values a row of tiles reads: `odd[t] = x[2t - 1]` and
 /// `even[t] = x[2t]` for tiles `t` in `0..=tiles` (zero outside the row, or for a padding row),
 /// through the prologue.
+#[inline(always)]
 fn split_row(row: Option<&[f32]>, prologue: Option<(f32, f32)>, even: &mut [f32], odd: &mut [f32]) {
     let Some(row) = row else {
         even.fill(0.0);
@@ -184,6 +194,7 @@ fn deal(row: &[f32], even: &mut [f32], odd: &mut [f32], f: impl Fn(f32) -> f32) 
 }
 
 /// Four disjoint runs of `n` values, `stride` apart, from the start of `v`.
+#[inline(always)]
 fn four_runs(v: &mut [f32], stride: usize, n: usize) -> [&mut [f32]; 4] {
     let (a, rest) = v.split_at_mut(stride);
     let (b, rest) = rest.split_at_mut(stride);
@@ -197,6 +208,7 @@ fn four_runs(v: &mut [f32], stride: usize, n: usize) -> [&mut [f32]; 4] {
 /// (the last column of every row is a spare tile, which the caller ignores), so every tile of the
 /// task is one run of one loop instead of a call per tile row: at 8x8 a tile row holds 4 tiles,
 /// and the per-call setup was most of the time. Writes `v[xi * stride + f]`.
+#[inline(always)]
 fn transform_input<'a>(rows: [[&'a [f32]; 2]; 2], row_len: usize, n: usize, v: &mut [f32], stride: usize) {
     // Columns 0..4 of a tile are x = 2t - 1, 2t, 2t + 1, 2t + 2; input row j is split row
     // 2 * (tile row) + j, row j / 2 of parity j % 2.
@@ -251,6 +263,7 @@ fn input_row(
 /// tile row's two output rows (one at the bottom of an odd height), and a last tile of an odd
 /// width writes its left column only. `columns` holds each output row's two columns per tile,
 /// reused between calls.
+#[inline(always)]
 fn transform_output(m: &[f32], stride: usize, row_len: usize, band: &mut [f32], width: usize, columns: &mut Vec<f32>) {
     let tile_rows = band.len().div_ceil(2 * width);
     let n = tile_rows * row_len;
@@ -311,11 +324,16 @@ pub(crate) fn forward_image(
     out: &mut [f32],
 ) {
     assert_eq!(image.len(), s.channels_in * s.height * s.width, "conv input size");
-    forward_rows(&Planes { image, height: s.height, width: s.width }, t, s, prologue, epilogue, out);
+    let planes = Planes { image, height: s.height, width: s.width };
+    forward_rows(Kernel::detect(), &planes, t, s, prologue, epilogue, out);
 }
 
-/// `forward_image` with its input's rows read through `input` ([channels_in, height, width]).
+/// `forward_image` with its input's rows read through `input` ([channels_in, height, width]),
+/// each task compiled for `kernel`'s vector features (`None`: the baseline's): the same
+/// arithmetic in the same order through wider vectors. The network passes the widest this CPU
+/// has (`Kernel::detect`); the tests run each.
 pub(crate) fn forward_rows<I: InputRows>(
+    kernel: Option<Kernel>,
     input: &I,
     t: &Transformed,
     s: &ConvShape,
@@ -326,15 +344,16 @@ pub(crate) fn forward_rows<I: InputRows>(
     assert!(applies(s), "Winograd's F(2x2, 3x3) and F(4x4, 3x3) take 3x3 stride-1 padding-1 convolutions");
     assert_eq!(t.u.len(), t.tile.products() * s.channels_out * s.channels_in, "transformed weight size");
     match t.tile {
-        Tile::Two => forward_tiles::<2, I>(input, &t.u, s, prologue, epilogue, out),
-        Tile::Four => forward_tiles::<4, I>(input, &t.u, s, prologue, epilogue, out),
+        Tile::Two => forward_tiles::<2, I>(kernel, input, &t.u, s, prologue, epilogue, out),
+        Tile::Four => forward_tiles::<4, I>(kernel, input, &t.u, s, prologue, epilogue, out),
     }
 }
 
-/// `forward_image` through tiles of `SIDE` outputs a side: one copy of the driver for each, so
+/// `forward_rows` through tiles of `SIDE` outputs a side: one copy of the driver for each, so
 /// that each inlines its own transforms (one driver for both ran the quickstart's network,
 /// which takes F(2x2, 3x3) alone, 3-7 % slower).
 fn forward_tiles<const SIDE: usize, I: InputRows>(
+    kernel: Option<Kernel>,
     input: &I,
     u: &[f32],
     s: &ConvShape,
@@ -342,18 +361,67 @@ fn forward_tiles<const SIDE: usize, I: InputRows>(
     epilogue: &Epilogue,
     out: &mut [f32],
 ) {
-    let (c, o, (h, w)) = (s.channels_in, s.channels_out, (s.height, s.width));
-    let (side, products) = (SIDE, (SIDE + 2) * (SIDE + 2));
-    assert_eq!(out.len(), o * h * w, "conv output size");
-    let (tile_rows, tw) = (h.div_ceil(side), w.div_ceil(side));
+    assert_eq!(out.len(), s.channels_out * s.height * s.width, "conv output size");
+    let (tile_rows, tw) = (s.height.div_ceil(SIDE), s.width.div_ceil(SIDE));
     let min_rows = MIN_TILES.div_ceil(tw).max(1);
     let dst = SharedMut(out.as_mut_ptr());
     column_chunks(tile_rows, min_rows, (MAX_TILES / tw).max(min_rows)).into_par_iter().for_each(|rows| {
+        let task = Task { input, u, s, prologue, epilogue, dst };
+        match kernel {
+            // SAFETY: `Kernel::detect` (or `each_detected`) found these features on this CPU.
+            #[cfg(target_arch = "x86_64")]
+            Some(Kernel::Avx512) => unsafe { tiles_avx512::<SIDE, I>(&task, rows) },
+            // SAFETY: as above.
+            #[cfg(target_arch = "x86_64")]
+            Some(Kernel::Avx2) => unsafe { tiles_avx2::<SIDE, I>(&task, rows) },
+            None => tiles::<SIDE, I>(&task, rows),
+        }
+    });
+}
+
+/// What every task of one convolution reads, and where it writes.
+struct Task<'a, I> {
+    input: &'a I,
+    u: &'a [f32],
+    s: &'a ConvShape,
+    prologue: Option<Prologue<'a>>,
+    epilogue: &'a Epilogue<'a>,
+    dst: SharedMut,
+}
+
+/// `tiles` compiled for wider vectors: its transforms (all inlined into it) vectorise over 8 or
+/// 16 tiles at once instead of the baseline's 4.
+macro_rules! tiles_for {
+    ($name:ident, $features:literal) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        fn $name<const SIDE: usize, I: InputRows>(task: &Task<'_, I>, rows: std::ops::Range<usize>) {
+            tiles::<SIDE, I>(task, rows)
+        }
+    };
+}
+tiles_for!(tiles_avx512, "avx512f,avx2,fma");
+tiles_for!(tiles_avx2, "avx2,fma");
+
+/// One task: the tile rows `rows`, from the input's rows through the transforms and products
+/// to the output's rows.
+#[inline(always)]
+fn tiles<const SIDE: usize, I: InputRows>(task: &Task<'_, I>, rows: std::ops::Range<usize>) {
+    let Task { input, u, s, prologue, epilogue, dst } = *task;
+    let (c, o, (h, w)) = (s.channels_in, s.channels_out, (s.height, s.width));
+    let (side, products) = (SIDE, (SIDE + 2) * (SIDE + 2));
+    let tw = w.div_ceil(side);
+    {
         // Each tile row has a spare tile at its end (see `transform_input`).
         let row_len = tw + 1;
         let nt = (rows.len() * row_len).next_multiple_of(PRODUCT_COLUMNS);
-        let block = (TRANSFORMED_BUDGET / (products * nt)).clamp(1, c.max(1));
-        BUFFERS.with_borrow_mut(|Buffers { v, m, split, columns, rows: scratch, line }| {
+        let budget = if SIDE == 2 { TRANSFORMED_BUDGET } else { TRANSFORMED_BUDGET_FOUR };
+        let block = (budget / (products * nt)).clamp(1, c.max(1));
+        // Out of the thread-local and back after, rather than in a closure: a closure would be
+        // compiled apart from this function's vector features.
+        let mut buffers = BUFFERS.take();
+        {
+            let Buffers { v, m, split, columns, rows: scratch, line } = &mut buffers;
             v.resize(v.len().max(products * block * nt), 0.0);
             m.resize(m.len().max(products * o * nt), 0.0);
             if c == 0 {
@@ -426,6 +494,7 @@ fn forward_tiles<const SIDE: usize, I: InputRows>(
                     epilogue.apply(oc, band);
                 }
             }
-        });
-    });
+        }
+        BUFFERS.set(buffers);
+    }
 }

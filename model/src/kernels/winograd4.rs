@@ -48,6 +48,7 @@ fn at(x: [&[f32]; 6], y: [&mut [f32]; 4]) {
 }
 
 /// `K` disjoint runs of `n` values, `stride` apart, from `offset` in `v`.
+#[inline(always)]
 fn runs_mut<const K: usize>(v: &mut [f32], offset: usize, stride: usize, n: usize) -> [&mut [f32]; K] {
     let mut rest = &mut v[offset..];
     let mut out: [&mut [f32]; K] = std::array::from_fn(|_| Default::default());
@@ -118,6 +119,7 @@ pub(super) fn transform_weight(weight: &[f32], channels_out: usize, channels_in:
 /// One input row dealt into the four column phases a row of tiles reads, `phases[k][t] = x[4t +
 /// k - 1]` for tiles `t` in `0..row_len` (zero outside the row, or for a padding row), through
 /// the prologue. `group` holds the four phases `len` apart; this row's values start at `at`.
+#[inline(always)]
 pub(super) fn split_row(
     row: Option<&[f32]>,
     prologue: Option<(f32, f32)>,
@@ -162,6 +164,7 @@ fn deal(row: &[f32], [p0, p1, p2, p3]: [&mut [f32]; 4], f: impl Fn(f32) -> f32) 
 /// column phase k) at `split[(4q + k) * len ..]`, tile row `r` of it at `r * row_len`. Input
 /// value (j, i) of tile `f` is run `(j % 4, i % 4)` at `f + (j / 4) * row_len + i / 4`. Writes
 /// `v[xi * stride + f]`; `rows` is scratch for 36 runs of `n`.
+#[inline(always)]
 pub(super) fn transform_input(
     split: &[f32],
     len: usize,
@@ -190,6 +193,7 @@ pub(super) fn transform_input(
 /// `transform_input`, into the output rows `band` ([rows, width], from a multiple of four on):
 /// a last tile row or column past the image writes only the rows and columns inside it.
 /// `scratch` holds `At M` and then `Y` as runs of tiles, reused between calls.
+#[inline(always)]
 pub(super) fn transform_output(
     m: &[f32],
     stride: usize,
