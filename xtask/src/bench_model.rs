@@ -4,9 +4,7 @@
 //! or on a GPU (`--devices cuda`, or several for the data-parallel train step). On the CPU,
 //! ONNX Runtime runs the same network exported by `model::onnx` (forward only).
 
-use std::process::Command;
-
-use anyhow::{Context, Result, bail};
+use anyhow::Result;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Distribution, Tensor};
 use formats::stats::Summary;
@@ -15,7 +13,8 @@ use train::data::{DepthBatcher, DepthItem};
 use train::parallel::DataParallel;
 
 use crate::ort_peer::{OrtPeer, interleave};
-use crate::timing::time_ms;
+use crate::peer::field;
+use crate::timing::{time_ms, time_ms_apart};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -56,6 +55,12 @@ pub struct Args {
     /// and without `model::backend::in_pool`'s hop into rayon's pool, alternately in this run.
     #[arg(long)]
     pool_hop_ab: bool,
+    /// Idle this many milliseconds before each timed forward, as between a camera's frames (a
+    /// frame every 33 ms at 30 fps): on a machine whose cores sleep when idle, a call after a
+    /// pause is slower than one in a busy loop. ONNX Runtime's runs, alternated with ours, are
+    /// 50 ms apart whatever this says.
+    #[arg(long, default_value_t = 0)]
+    pause_ms: u64,
     /// Measure the forward pass only (for profiling).
     #[arg(long)]
     forward_only: bool,
@@ -155,7 +160,7 @@ pub fn run(args: Args) -> Result<()> {
                 ort.push((batch, both.peer));
                 both.ours
             }
-            None => time_ms(args.reps, run),
+            None => time_ms_apart(args.reps, std::time::Duration::from_millis(args.pause_ms), run),
         };
         // Where the forward time goes: the encoder alone (the decoder is the rest), called as
         // `DenseDepth::forward` calls it, from inside rayon's pool.
@@ -246,7 +251,7 @@ pub fn run(args: Args) -> Result<()> {
         if config.full_resolution {
             torch_args.push("--full-resolution");
         }
-        for line in &run_peer(&args.python, "densedepth_torch.py", &torch_args)? {
+        for line in crate::peer::run(&args.python, "densedepth_torch.py", &torch_args)?.lines() {
             if let (Some(batch), Some(f)) = (field(line, "batch="), times(line, "forward")) {
                 peer.push((batch as usize, f, times(line, "train")));
             }
@@ -373,22 +378,6 @@ fn loss_alone(
             let _ = pred.grad(&grads).map(|g| g.into_data());
         })
     })
-}
-
-/// `key=value` of a peer's output line, as a number.
-fn field(line: &str, key: &str) -> Option<f64> {
-    line.split_whitespace().find_map(|w| w.strip_prefix(key)).and_then(|v| v.parse::<f64>().ok())
-}
-
-/// Runs `peers/SCRIPT` with `python`; its standard output's lines.
-fn run_peer(python: &str, script: &str, args: &[&str]) -> Result<Vec<String>> {
-    let script = format!("{}/peers/{script}", env!("CARGO_MANIFEST_DIR"));
-    let out =
-        Command::new(python).arg(&script).args(args).output().with_context(|| format!("running {python} {script}"))?;
-    if !out.status.success() {
-        bail!("peer {script} failed: {}", String::from_utf8_lossy(&out.stderr));
-    }
-    Ok(String::from_utf8_lossy(&out.stdout).lines().map(String::from).collect())
 }
 
 /// The description the ONNX export's metadata carries, for a benchmark's untrained network.

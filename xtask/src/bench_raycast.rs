@@ -4,7 +4,6 @@
 
 use std::io::Write;
 use std::path::PathBuf;
-use std::process::Command;
 
 use anyhow::{Context, Result, bail};
 use dataset::generate::{Generator, build_scene};
@@ -85,21 +84,11 @@ pub fn run(args: Args) -> Result<()> {
         let reference = reference.as_ref().expect("measured above");
         let ours: Vec<f32> = rays.indices.iter().map(|&i| reference.depth_mm[i as usize]).collect();
         write_scene(&file, &parts, &rays, &ours)?;
-        let script = concat!(env!("CARGO_MANIFEST_DIR"), "/peers/raycast_open3d.py");
-        let out = Command::new(&args.python)
-            .args([script, file.to_str().unwrap(), &args.reps.to_string(), &threads.to_string()])
-            .output()
-            .with_context(|| format!("running {} {script}", args.python))?;
-        if !out.status.success() {
-            bail!("peer failed: {}", String::from_utf8_lossy(&out.stderr));
-        }
-        let text = String::from_utf8_lossy(&out.stdout);
-        let field = |key: &str| -> Result<f64> {
-            text.split_whitespace()
-                .find_map(|w| w.strip_prefix(key))
-                .context("peer output lacks a field")?
-                .parse()
-                .context("peer output field is not a number")
+        let (scene, reps, threads) =
+            (file.to_str().context("a temporary path that is not UTF-8")?, args.reps.to_string(), threads.to_string());
+        let text = crate::peer::run(&args.python, "raycast_open3d.py", &[scene, &reps, &threads])?;
+        let field = |key: &str| {
+            crate::peer::field(&text, key).with_context(|| format!("Open3D's peer printed no number for {key}"))
         };
         let (build_s, cast_s, max_err) = (field("build_s=")?, field("cast_s=")?, field("max_abs_depth_diff_mm=")?);
         rows.push(("Open3D RaycastingScene (Embree)".into(), build_s, cast_s, rays.len(), triangles));

@@ -18,6 +18,7 @@ mod bench_render;
 mod bench_table;
 mod fuzz;
 mod ort_peer;
+mod peer;
 mod quickstart;
 mod timing;
 

@@ -20,7 +20,7 @@ pub struct OrtPeer {
 impl OrtPeer {
     /// Starts the peer on `model` (an ONNX file) for inputs of `channels` x `hw` with `threads`.
     pub fn start(python: &str, model: &str, channels: usize, [h, w]: [usize; 2], threads: usize) -> Result<Self> {
-        let script = format!("{}/peers/onnx_runtime.py", env!("CARGO_MANIFEST_DIR"));
+        let script = crate::peer::script("onnx_runtime.py");
         let [c, h, w, t] = [channels, h, w, threads].map(|v| v.to_string());
         let mut child = Command::new(python)
             .arg(&script)

@@ -97,11 +97,13 @@ impl Kernel {
         let mut kernels = Vec::new();
         #[cfg(target_arch = "x86_64")]
         {
-            let fma = is_x86_feature_detected!("fma");
-            if fma && is_x86_feature_detected!("avx512f") {
+            // AVX-512 code may also use AVX2 and FMA (`winograd`'s twins enable all three), so
+            // its kernel asks for every one of them.
+            let (fma, avx2) = (is_x86_feature_detected!("fma"), is_x86_feature_detected!("avx2"));
+            if fma && avx2 && is_x86_feature_detected!("avx512f") {
                 kernels.push(Kernel::Avx512);
             }
-            if fma && is_x86_feature_detected!("avx2") {
+            if fma && avx2 {
                 kernels.push(Kernel::Avx2);
             }
         }

@@ -365,16 +365,17 @@ fn forward_tiles<const SIDE: usize, I: InputRows>(
     let (tile_rows, tw) = (s.height.div_ceil(SIDE), s.width.div_ceil(SIDE));
     let min_rows = MIN_TILES.div_ceil(tw).max(1);
     let dst = SharedMut(out.as_mut_ptr());
+    let task = Task { input, u, s, prologue, epilogue, dst };
     column_chunks(tile_rows, min_rows, (MAX_TILES / tw).max(min_rows)).into_par_iter().for_each(|rows| {
-        let task = Task { input, u, s, prologue, epilogue, dst };
+        let task = &task;
         match kernel {
             // SAFETY: `Kernel::detect` (or `each_detected`) found these features on this CPU.
             #[cfg(target_arch = "x86_64")]
-            Some(Kernel::Avx512) => unsafe { tiles_avx512::<SIDE, I>(&task, rows) },
+            Some(Kernel::Avx512) => unsafe { tiles_avx512::<SIDE, I>(task, rows) },
             // SAFETY: as above.
             #[cfg(target_arch = "x86_64")]
-            Some(Kernel::Avx2) => unsafe { tiles_avx2::<SIDE, I>(&task, rows) },
-            None => tiles::<SIDE, I>(&task, rows),
+            Some(Kernel::Avx2) => unsafe { tiles_avx2::<SIDE, I>(task, rows) },
+            None => tiles::<SIDE, I>(task, rows),
         }
     });
 }
@@ -411,90 +412,86 @@ fn tiles<const SIDE: usize, I: InputRows>(task: &Task<'_, I>, rows: std::ops::Ra
     let (c, o, (h, w)) = (s.channels_in, s.channels_out, (s.height, s.width));
     let (side, products) = (SIDE, (SIDE + 2) * (SIDE + 2));
     let tw = w.div_ceil(side);
-    {
-        // Each tile row has a spare tile at its end (see `transform_input`).
-        let row_len = tw + 1;
-        let nt = (rows.len() * row_len).next_multiple_of(PRODUCT_COLUMNS);
-        let budget = if SIDE == 2 { TRANSFORMED_BUDGET } else { TRANSFORMED_BUDGET_FOUR };
-        let block = (budget / (products * nt)).clamp(1, c.max(1));
-        // Out of the thread-local and back after, rather than in a closure: a closure would be
-        // compiled apart from this function's vector features.
-        let mut buffers = BUFFERS.take();
-        {
-            let Buffers { v, m, split, columns, rows: scratch, line } = &mut buffers;
-            v.resize(v.len().max(products * block * nt), 0.0);
-            m.resize(m.len().max(products * o * nt), 0.0);
-            if c == 0 {
-                // No products to write them: a convolution of nothing is zero.
-                m[..products * o * nt].fill(0.0);
-            }
-            // The task's input rows side * rows.start - 1 ..= side * rows.end, each split once
-            // into its column phases and grouped by row phase: run (row phase q, column phase
-            // k) at `(side * q + k) * len`, then zeros, which the spare tiles up to `nt` read
-            // (their products are computed and never read; zeros keep them finite whatever the
-            // buffer held before). F(2x2, 3x3)'s two phases are [even, odd] columns.
-            let (rows_len, len) = ((rows.len() + 1) * row_len, row_len + 1 + nt);
-            let runs = side * side;
-            split.resize(split.len().max(runs * len), 0.0);
-            split[..runs * len].chunks_exact_mut(len).for_each(|run| run[rows_len..].fill(0.0));
-            for c0 in (0..c).step_by(block) {
-                let channels = c0..(c0 + block).min(c);
-                let stride = channels.len() * nt;
-                for (cl, ic) in channels.clone().enumerate() {
-                    let affine = prologue.map(|q| (q.scale[ic], q.shift[ic]));
-                    for r in 0..side * rows.len() + 2 {
-                        let y = (side * rows.start + r).checked_sub(1).filter(|y| *y < h);
-                        let row = y.map(|y| input.row(ic, y, line));
-                        let (group, at) = (&mut split[(r % side) * side * len..], (r / side) * row_len);
-                        if SIDE == 2 {
-                            let (even, odd) = group.split_at_mut(len);
-                            split_row(row, affine, &mut even[at..][..row_len], &mut odd[at..][..row_len]);
-                        } else {
-                            winograd4::split_row(row, affine, group, len, at, row_len);
-                        }
-                    }
-                    let v = &mut v[cl * nt..];
-                    if SIDE == 2 {
-                        let parity = |p: usize| {
-                            let (even, odd) = split[2 * p * len..][..2 * len].split_at(len);
-                            [even, odd]
-                        };
-                        transform_input([parity(0), parity(1)], row_len, nt, v, stride);
-                    } else {
-                        winograd4::transform_input(split, len, row_len, nt, v, stride, scratch);
-                    }
-                }
-                for xi in 0..products {
-                    // SAFETY: `m` holds `products` [o, nt] products, `v` as many [channels, nt]
-                    // blocks and `u` as many [o, c] matrices whose columns `c0..` this block reads.
-                    unsafe {
-                        matmul(
-                            [o, nt, channels.len()],
-                            m.as_mut_ptr().add(xi * o * nt),
-                            [1, nt],
-                            c0 > 0,
-                            u.as_ptr().add(xi * o * c + c0),
-                            [1, c],
-                            v.as_ptr().add(xi * stride),
-                            [1, nt],
-                        );
-                    }
-                }
-            }
-            let (y0, y1) = (side * rows.start, (side * rows.end).min(h));
-            for oc in 0..o {
-                // SAFETY: rows `y0..y1` of output channel `oc` belong to this task alone.
-                let band = unsafe { std::slice::from_raw_parts_mut(dst.at(oc * h * w + y0 * w), (y1 - y0) * w) };
+    // Each tile row has a spare tile at its end (see `transform_input`).
+    let row_len = tw + 1;
+    let nt = (rows.len() * row_len).next_multiple_of(PRODUCT_COLUMNS);
+    let budget = if SIDE == 2 { TRANSFORMED_BUDGET } else { TRANSFORMED_BUDGET_FOUR };
+    let block = (budget / (products * nt)).clamp(1, c.max(1));
+    // Out of the thread-local and back after, rather than in a closure: a closure would be
+    // compiled apart from this function's vector features.
+    let mut buffers = BUFFERS.take();
+    let Buffers { v, m, split, columns, rows: scratch, line } = &mut buffers;
+    v.resize(v.len().max(products * block * nt), 0.0);
+    m.resize(m.len().max(products * o * nt), 0.0);
+    if c == 0 {
+        // No products to write them: a convolution of nothing is zero.
+        m[..products * o * nt].fill(0.0);
+    }
+    // The task's input rows side * rows.start - 1 ..= side * rows.end, each split once
+    // into its column phases and grouped by row phase: run (row phase q, column phase
+    // k) at `(side * q + k) * len`, then zeros, which the spare tiles up to `nt` read
+    // (their products are computed and never read; zeros keep them finite whatever the
+    // buffer held before). F(2x2, 3x3)'s two phases are [even, odd] columns.
+    let (rows_len, len) = ((rows.len() + 1) * row_len, row_len + 1 + nt);
+    let runs = side * side;
+    split.resize(split.len().max(runs * len), 0.0);
+    split[..runs * len].chunks_exact_mut(len).for_each(|run| run[rows_len..].fill(0.0));
+    for c0 in (0..c).step_by(block) {
+        let channels = c0..(c0 + block).min(c);
+        let stride = channels.len() * nt;
+        for (cl, ic) in channels.clone().enumerate() {
+            let affine = prologue.map(|q| (q.scale[ic], q.shift[ic]));
+            for r in 0..side * rows.len() + 2 {
+                let y = (side * rows.start + r).checked_sub(1).filter(|y| *y < h);
+                let row = y.map(|y| input.row(ic, y, line));
+                let (group, at) = (&mut split[(r % side) * side * len..], (r / side) * row_len);
                 if SIDE == 2 {
-                    transform_output(&m[oc * nt..], o * nt, row_len, band, w, columns);
+                    let (even, odd) = group.split_at_mut(len);
+                    split_row(row, affine, &mut even[at..][..row_len], &mut odd[at..][..row_len]);
                 } else {
-                    winograd4::transform_output(&m[oc * nt..], o * nt, row_len, band, w, columns);
+                    winograd4::split_row(row, affine, group, len, at, row_len);
                 }
-                if !epilogue.is_identity() {
-                    epilogue.apply(oc, band);
-                }
+            }
+            let v = &mut v[cl * nt..];
+            if SIDE == 2 {
+                let parity = |p: usize| {
+                    let (even, odd) = split[2 * p * len..][..2 * len].split_at(len);
+                    [even, odd]
+                };
+                transform_input([parity(0), parity(1)], row_len, nt, v, stride);
+            } else {
+                winograd4::transform_input(split, len, row_len, nt, v, stride, scratch);
             }
         }
-        BUFFERS.set(buffers);
+        for xi in 0..products {
+            // SAFETY: `m` holds `products` [o, nt] products, `v` as many [channels, nt]
+            // blocks and `u` as many [o, c] matrices whose columns `c0..` this block reads.
+            unsafe {
+                matmul(
+                    [o, nt, channels.len()],
+                    m.as_mut_ptr().add(xi * o * nt),
+                    [1, nt],
+                    c0 > 0,
+                    u.as_ptr().add(xi * o * c + c0),
+                    [1, c],
+                    v.as_ptr().add(xi * stride),
+                    [1, nt],
+                );
+            }
+        }
     }
+    let (y0, y1) = (side * rows.start, (side * rows.end).min(h));
+    for oc in 0..o {
+        // SAFETY: rows `y0..y1` of output channel `oc` belong to this task alone.
+        let band = unsafe { std::slice::from_raw_parts_mut(dst.at(oc * h * w + y0 * w), (y1 - y0) * w) };
+        if SIDE == 2 {
+            transform_output(&m[oc * nt..], o * nt, row_len, band, w, columns);
+        } else {
+            winograd4::transform_output(&m[oc * nt..], o * nt, row_len, band, w, columns);
+        }
+        if !epilogue.is_identity() {
+            epilogue.apply(oc, band);
+        }
+    }
+    BUFFERS.set(buffers);
 }
