@@ -5,6 +5,7 @@ of CI. Needs: pip install onnxruntime numpy.
 Prints `ready version=V`, then times one forward for each batch size read from standard input,
 one per line (the first of each size after a warm-up), printing forward_ms=X: the Rust side
 (`xtask/src/ort_peer.rs`) alternates these runs with its own, so that both see the same machine.
+A line `depth B PATH` asks for the depth output of the images in PATH instead (see below).
 """
 import argparse, sys, time
 import numpy as np
@@ -24,6 +25,14 @@ name = session.get_inputs()[0].name
 inputs = {}
 print(f"ready version={ort.__version__}", flush=True)
 for line in sys.stdin:
+    if line.startswith("depth "):
+        # `depth B PATH`: the depth output for the B images in PATH (float32, little-endian,
+        # [B, channels, height, width]), written to PATH.out, for the bench's error figure.
+        _, b, path = line.rstrip("\n").split(" ", 2)
+        x = np.fromfile(path, dtype="<f4").reshape(int(b), a.channels, a.height, a.width)
+        session.run(["depth"], {name: x})[0].astype("<f4").tofile(path + ".out")
+        print("depth written", flush=True)
+        continue
     b = int(line)
     if b not in inputs:
         inputs[b] = np.random.default_rng(0).random((b, a.channels, a.height, a.width), dtype=np.float32)

@@ -12,7 +12,7 @@ use model::{DenseDepthConfig, DepthLossConfig};
 use train::data::{DepthBatcher, DepthItem};
 use train::parallel::DataParallel;
 
-use crate::ort_peer::{OrtPeer, interleave};
+use crate::ort_peer::{OrtPeer, difference, interleave};
 use crate::peer::field;
 use crate::timing::{time_ms, time_ms_apart};
 
@@ -130,10 +130,12 @@ pub fn run(args: Args) -> Result<()> {
     // ONNX Runtime on the same exported network (one model for every batch size: the batch is
     // free in the graph), what a user would run instead of us on a CPU, its runs alternated
     // with flex's.
+    // One network for both sides, so that their outputs can be compared.
+    let untrained = config.init(&device);
     let onnx_dir = tempfile::tempdir()?;
     let mut ort_peer = if on_cpu && run_peers(Peer::Onnxruntime) {
         let onnx = onnx_dir.path().join("densedepth.onnx");
-        std::fs::write(&onnx, model::onnx::export(&config.init(&device), &model_bundle_file(&config, [h, w]))?)?;
+        std::fs::write(&onnx, model::onnx::export(&untrained, &model_bundle_file(&config, [h, w]))?)?;
         Some(OrtPeer::start(&args.python, &onnx.display().to_string(), channels, [h, w], threads)?)
     } else {
         None
@@ -142,7 +144,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut rows = Vec::new();
     for &batch in &args.batches {
         // Inference as `infer` runs it: eval mode, no autodiff, BatchNorms folded.
-        let net = config.init(&device).folded();
+        let net = untrained.clone().folded();
         let images = Tensor::<4>::random([batch, channels, h, w], Distribution::Uniform(0.0, 1.0), &device);
         let run = || {
             let out = net.forward(images.clone());
@@ -152,8 +154,21 @@ pub fn run(args: Args) -> Result<()> {
             Some(peer) => {
                 let once = || crate::timing::once(run).0 * 1e3;
                 let both = interleave(args.reps, once, || peer.forward_ms(batch))?;
+                // Beside the speed, how far apart the two outputs are on one input.
+                let ours = net
+                    .forward(images.clone())
+                    .into_data()
+                    .try_into_vec::<f32>()
+                    .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+                let theirs = peer.depth(
+                    onnx_dir.path(),
+                    batch,
+                    &images.clone().into_data().try_into_vec::<f32>().map_err(|e| anyhow::anyhow!("{e:?}"))?,
+                )?;
+                let (abs, rel) = difference(&ours, &theirs)?;
                 println!(
-                    "batch {batch}: flex and ONNX Runtime {} alternately: ratio of each pair {}",
+                    "batch {batch}: flex and ONNX Runtime {} alternately: ratio of each pair {}; outputs \
+                     {abs:.2e} apart at most ({rel:.1e} of ONNX Runtime's largest)",
                     peer.version,
                     both.ratio.median_and_quartiles()
                 );
@@ -381,7 +396,7 @@ fn loss_alone(
 }
 
 /// The description the ONNX export's metadata carries, for a benchmark's untrained network.
-fn model_bundle_file(config: &DenseDepthConfig, [h, w]: [usize; 2]) -> model::bundle::BundleFile {
+pub(crate) fn model_bundle_file(config: &DenseDepthConfig, [h, w]: [usize; 2]) -> model::bundle::BundleFile {
     model::bundle::BundleFile::new(config.clone(), [h, w], sensor::Sensor::default(), model::DepthScale::paper(9.4))
 }
 

@@ -3,6 +3,7 @@
 //! tens of percent over a minute, two sides timed one after the other compare two machines.
 
 use std::io::{BufRead, BufReader, Write};
+use std::path::Path;
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 
 use anyhow::{Context, Result, bail};
@@ -59,6 +60,39 @@ impl OrtPeer {
             .and_then(|v| v.parse().ok())
             .with_context(|| format!("the ONNX Runtime peer answered {line:?}"))
     }
+
+    /// ONNX Runtime's depth output for `images` (`batch` of them, [channels, height, width]
+    /// each, row-major), passed through files in `dir`: the other side of the benchmark's error
+    /// figure.
+    pub fn depth(&mut self, dir: &Path, batch: usize, images: &[f32]) -> Result<Vec<f32>> {
+        let path = dir.join(format!("ort_input_{batch}.f32"));
+        std::fs::write(&path, images.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>())
+            .with_context(|| format!("writing {}", path.display()))?;
+        writeln!(self.stdin, "depth {batch} {}", path.display())?;
+        self.stdin.flush()?;
+        let line = self.line()?;
+        if line != "depth written" {
+            bail!("the ONNX Runtime peer answered {line:?} to a depth request");
+        }
+        let out = path.with_extension("f32.out");
+        let bytes = std::fs::read(&out).with_context(|| format!("reading {}", out.display()))?;
+        Ok(bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+    }
+}
+
+/// How far `ours` is from `peer`'s values: the largest absolute difference, and that over the
+/// largest absolute value of `peer` (an untrained network's outputs have no natural scale).
+/// A length mismatch or a non-finite value is an error, not a figure.
+pub fn difference(ours: &[f32], peer: &[f32]) -> Result<(f32, f32)> {
+    if ours.len() != peer.len() {
+        bail!("outputs of {} and {} values", ours.len(), peer.len());
+    }
+    if let Some(i) = ours.iter().chain(peer).position(|v| !v.is_finite()) {
+        bail!("a non-finite output value (at {i} of both outputs laid end to end)");
+    }
+    let largest = ours.iter().zip(peer).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    let scale = peer.iter().map(|v| v.abs()).fold(0.0f32, f32::max);
+    Ok((largest, if scale > 0.0 { largest / scale } else { largest }))
 }
 
 impl Drop for OrtPeer {
@@ -135,6 +169,56 @@ mod tests {
         assert_eq!((i.ratio.q1, i.ratio.median, i.ratio.q3), (0.5, 0.5, 0.5));
         assert_eq!(i.ours.median, 15.5);
         assert_eq!(i.peer.median, 31.0);
+    }
+
+    #[test]
+    fn a_difference_is_measured_against_the_peers_scale_and_refuses_what_it_cannot_measure() {
+        let (abs, rel) = difference(&[1.0, -2.0, 3.5], &[1.0, -2.5, 4.0]).unwrap();
+        assert_eq!((abs, rel), (0.5, 0.125));
+        assert_eq!(difference(&[0.0], &[0.0]).unwrap(), (0.0, 0.0));
+        assert!(difference(&[1.0], &[1.0, 2.0]).is_err());
+        assert!(difference(&[f32::NAN], &[1.0]).is_err());
+        assert!(difference(&[1.0], &[f32::INFINITY]).is_err());
+    }
+
+    /// Whether the tests must find ONNX Runtime (CI says so through `DENSETACT_REQUIRE`, as
+    /// for the Python package's tests), or may go without where it is not installed.
+    fn onnxruntime_or_skip() -> bool {
+        let here =
+            Command::new("python3").args(["-c", "import onnxruntime, numpy"]).status().is_ok_and(|s| s.success());
+        let required = std::env::var("DENSETACT_REQUIRE").is_ok_and(|r| r.split(',').any(|p| p == "onnxruntime"));
+        assert!(here || !required, "DENSETACT_REQUIRE names onnxruntime, which python3 cannot import");
+        if !here {
+            eprintln!("skipped: python3 has no onnxruntime");
+        }
+        here
+    }
+
+    #[test]
+    fn the_peer_runs_the_exported_network_to_flexs_output_and_times_it() {
+        use burn::tensor::{Distribution, Tensor};
+        if !onnxruntime_or_skip() {
+            return;
+        }
+        let device = model::backend::default_device();
+        let config = model::DenseDepthConfig::new(model::Preset::Tiny.config());
+        let (channels, hw) = (config.input.count(), [32, 48]);
+        let untrained = config.init(&device);
+        let net = untrained.clone().folded();
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("tiny.onnx");
+        let bundle = crate::bench_model::model_bundle_file(&config, hw);
+        std::fs::write(&file, model::onnx::export(&untrained, &bundle).unwrap()).unwrap();
+        let mut peer = OrtPeer::start("python3", file.to_str().unwrap(), channels, hw, 1).unwrap();
+        assert!(!peer.version.is_empty());
+        assert!(peer.forward_ms(2).unwrap() > 0.0);
+        let images = Tensor::<4>::random([2, channels, hw[0], hw[1]], Distribution::Uniform(0.0, 1.0), &device);
+        let ours = net.forward(images.clone()).into_data().try_into_vec::<f32>().unwrap();
+        let theirs = peer.depth(dir.path(), 2, &images.into_data().try_into_vec::<f32>().unwrap()).unwrap();
+        let (abs, rel) = difference(&ours, &theirs).unwrap();
+        assert!(rel < 1e-4, "flex and ONNX Runtime differ by {abs} ({rel} of the output's scale)");
+        // A request the peer cannot serve is an error naming it, not a number.
+        assert!(peer.depth(&dir.path().join("missing"), 2, &[0.0; 3]).is_err());
     }
 
     #[test]
