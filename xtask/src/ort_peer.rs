@@ -217,8 +217,12 @@ mod tests {
         let theirs = peer.depth(dir.path(), 2, &images.into_data().try_into_vec::<f32>().unwrap()).unwrap();
         let (abs, rel) = difference(&ours, &theirs).unwrap();
         assert!(rel < 1e-4, "flex and ONNX Runtime differ by {abs} ({rel} of the output's scale)");
-        // A request the peer cannot serve is an error naming it, not a number.
-        assert!(peer.depth(&dir.path().join("missing"), 2, &[0.0; 3]).is_err());
+        // A file that cannot be written is an error naming it; so is a request the peer cannot
+        // serve (three values are no batch of two images), which ends it.
+        let err = peer.depth(&dir.path().join("missing"), 2, &[0.0; 3]).unwrap_err();
+        assert!(format!("{err:#}").contains("missing"), "{err:#}");
+        let err = peer.depth(dir.path(), 2, &[0.0; 3]).unwrap_err();
+        assert!(format!("{err:#}").contains("ONNX Runtime peer"), "{err:#}");
     }
 
     #[test]
