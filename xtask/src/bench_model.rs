@@ -155,16 +155,9 @@ pub fn run(args: Args) -> Result<()> {
                 let once = || crate::timing::once(run).0 * 1e3;
                 let both = interleave(args.reps, once, || peer.forward_ms(batch))?;
                 // Beside the speed, how far apart the two outputs are on one input.
-                let ours = net
-                    .forward(images.clone())
-                    .into_data()
-                    .try_into_vec::<f32>()
-                    .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-                let theirs = peer.depth(
-                    onnx_dir.path(),
-                    batch,
-                    &images.clone().into_data().try_into_vec::<f32>().map_err(|e| anyhow::anyhow!("{e:?}"))?,
-                )?;
+                let values = |t: Tensor<4>| t.into_data().try_into_vec::<f32>().map_err(|e| anyhow::anyhow!("{e:?}"));
+                let ours = values(net.forward(images.clone()))?;
+                let theirs = peer.depth(onnx_dir.path(), batch, &values(images.clone())?)?;
                 let (abs, rel) = difference(&ours, &theirs)?;
                 println!(
                     "batch {batch}: flex and ONNX Runtime {} alternately: ratio of each pair {}; outputs \

@@ -74,7 +74,8 @@ impl OrtPeer {
         if line != "depth written" {
             bail!("the ONNX Runtime peer answered {line:?} to a depth request");
         }
-        let out = path.with_extension("f32.out");
+        // Where the peer writes it: the input's path with `.out` appended.
+        let out = std::path::PathBuf::from(format!("{}.out", path.display()));
         let bytes = std::fs::read(&out).with_context(|| format!("reading {}", out.display()))?;
         Ok(bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
     }
