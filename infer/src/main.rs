@@ -276,6 +276,14 @@ struct StreamArgs {
     /// flex (CPU) or wgpu.
     #[arg(long, default_value = "flex")]
     device: String,
+    /// On the CPU, keep all but one of the network's worker threads polling for work this long
+    /// after each frame instead of sleeping, as ONNX Runtime's do by default (about 60 ms): a
+    /// frame then need not wait for a sleeping core to wake (the quickstart's network at 20
+    /// fps on a 2-vCPU VM: 4.4 ms a frame against 5.9), for the price of a core kept busy
+    /// between frames (58 ms of CPU per 50 ms frame against 6). A frame period or a little
+    /// more (40 at 30 fps) keeps them polling while frames come; 0, the default, lets them sleep.
+    #[arg(long, default_value_t = 0)]
+    spin_ms: u64,
     #[command(flatten)]
     loading: Loading,
     /// Let the reference frame follow the camera, slowly, from frames with no contact (2 s
@@ -404,6 +412,7 @@ fn stream(args: StreamArgs) -> Result<()> {
         idle_exit_s,
         poll_ms,
         device,
+        spin_ms,
         loading,
         follow_reference,
         ros2,
@@ -420,6 +429,7 @@ fn stream(args: StreamArgs) -> Result<()> {
         formats::output::check_dir(out, formats::output::OutputKind::Stream, &inputs)?;
     }
     let dev = model::backend::working_device(&device)?;
+    model::backend::set_spin(std::time::Duration::from_millis(spin_ms));
     let predictor = load(&bundle, &dev, &loading)?;
     let source = stream_source(&source, fps, poll_ms, idle_exit_s, &predictor.file.sensor)?;
     let mut folder = out.as_deref().map(FolderSink::new).transpose()?;

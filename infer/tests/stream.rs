@@ -265,6 +265,20 @@ fn the_command_streams_a_glob_stops_at_max_frames_and_refuses_bad_sources() {
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("stream.json")).unwrap()).unwrap();
     assert_eq!(json["processed"], 3);
     assert_eq!(std::fs::read_dir(out.join("depth")).unwrap().count(), 3);
+    // Workers polling between frames change no result.
+    let polled = tmp.path().join("polled");
+    let o = infer(
+        &["--bundle", b, "--source", &pattern, "--out", polled.to_str().unwrap(), "--max-frames", "3"]
+            .into_iter()
+            .chain(["--spin-ms", "30"])
+            .collect::<Vec<_>>(),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for entry in std::fs::read_dir(out.join("depth")).unwrap() {
+        let name = entry.unwrap().file_name();
+        let [a, b] = [&out, &polled].map(|d| std::fs::read(d.join("depth").join(&name)).unwrap());
+        assert!(a == b, "{name:?} differs with --spin-ms");
+    }
 
     let refused = |args: &[&str], words: &[&str]| {
         let o = infer(args);

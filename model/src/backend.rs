@@ -48,8 +48,94 @@ pub fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     if rayon::current_thread_index().is_some() || !POOL_HOP.load(std::sync::atomic::Ordering::Relaxed) {
         f()
     } else {
-        rayon::scope(|_| f())
+        rayon::scope(|_| {
+            let r = f();
+            keep_warm();
+            r
+        })
     }
+}
+
+/// How long (ns) rayon's workers keep polling for work after an [`in_pool`] call; 0: not at all.
+static SPIN_NS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+/// Until when (ns on [`clock_ns`]) the polling tasks poll.
+static SPIN_UNTIL_NS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+/// How many polling tasks are in rayon's pool now.
+static SPINNERS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// Keeps all but one of rayon's workers (at least one) polling for work for `window` after each
+/// [`in_pool`] call, process-wide; zero, the default, turns it off. For frames that come at a
+/// camera's rate: a worker that has slept through the gap between two frames is woken late (on
+/// a 2-vCPU VM, a job scattered at a forward's start began on the second worker 2.2 ms later),
+/// so the quickstart's 128x128 forward took 5.8 ms 50 ms after the last one and 3.7 ms back to
+/// back; polling through the gap it takes 3.9-4.6 ms, for the price of a core kept busy
+/// (BENCHMARKS.md, "Keeping a worker polling between frames"). ONNX Runtime does this by
+/// default: its workers spin about 60 ms after each run.
+pub fn set_spin(window: std::time::Duration) {
+    let ns = u64::try_from(window.as_nanos()).unwrap_or(u64::MAX);
+    SPIN_NS.store(ns, std::sync::atomic::Ordering::SeqCst);
+    if ns == 0 {
+        // Off means now: the polling tasks leave at their next look at the deadline.
+        SPIN_UNTIL_NS.store(0, std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
+/// Nanoseconds since the first call: the polling tasks' clock.
+fn clock_ns() -> u64 {
+    static START: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+    u64::try_from(START.get_or_init(std::time::Instant::now).elapsed().as_nanos()).unwrap_or(u64::MAX)
+}
+
+/// How many polling tasks [`set_spin`] keeps: all workers but the one the caller's next call
+/// will wake by itself, and at least one.
+fn spinners_wanted() -> usize {
+    rayon::current_num_threads().saturating_sub(1).max(1)
+}
+
+/// Takes one polling task's place if fewer than wanted hold one.
+fn take_spinner_place() -> bool {
+    use std::sync::atomic::Ordering::SeqCst;
+    let wanted = spinners_wanted();
+    SPINNERS.fetch_update(SeqCst, SeqCst, |n| (n < wanted).then_some(n + 1)).is_ok()
+}
+
+/// After an [`in_pool`] call: moves the polling deadline on and starts the polling tasks that
+/// are missing.
+fn keep_warm() {
+    use std::sync::atomic::Ordering::SeqCst;
+    let window = SPIN_NS.load(SeqCst);
+    if window == 0 {
+        return;
+    }
+    SPIN_UNTIL_NS.fetch_max(clock_ns().saturating_add(window), SeqCst);
+    while take_spinner_place() {
+        rayon::spawn(poll_until_deadline);
+    }
+}
+
+/// One polling task: runs whatever work the pool has (a forward's scatter, the next call's
+/// hop) until the deadline, then leaves, unless a call moved the deadline on meanwhile.
+fn poll_until_deadline() {
+    use std::sync::atomic::Ordering::SeqCst;
+    loop {
+        while clock_ns() < SPIN_UNTIL_NS.load(SeqCst) {
+            if rayon::yield_now() != Some(rayon::Yield::Executed) {
+                std::hint::spin_loop();
+            }
+        }
+        SPINNERS.fetch_sub(1, SeqCst);
+        // A call that ended between the loop's last check and the count's decrement saw this
+        // task counted and started none: stay for it.
+        if clock_ns() >= SPIN_UNTIL_NS.load(SeqCst) || !take_spinner_place() {
+            return;
+        }
+    }
+}
+
+/// How many polling tasks are running (for the tests).
+#[cfg(test)]
+pub(crate) fn spinners() -> usize {
+    SPINNERS.load(std::sync::atomic::Ordering::SeqCst)
 }
 
 static POOL_HOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(true);
@@ -198,6 +284,28 @@ mod tests {
             let e = device("cuda:0").unwrap_err().to_string();
             assert!(e.contains("--features model/cuda"), "{e}");
         }
+    }
+
+    #[test]
+    fn polling_workers_run_the_next_calls_and_leave_when_turned_off() {
+        use rayon::prelude::*;
+        let work = || (0..200_000u64).into_par_iter().map(|i| i * i % 7).sum::<u64>();
+        let want: u64 = (0..200_000u64).map(|i| i * i % 7).sum();
+        set_spin(std::time::Duration::from_secs(60));
+        for _ in 0..20 {
+            // Each call after the first hops onto a pool whose workers are polling.
+            assert_eq!(in_pool(work), want);
+            assert_eq!(spinners(), spinners_wanted());
+        }
+        set_spin(std::time::Duration::ZERO);
+        let waited = std::time::Instant::now();
+        while spinners() > 0 && waited.elapsed() < std::time::Duration::from_secs(30) {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        assert_eq!(spinners(), 0, "the polling tasks must leave once turned off");
+        // And calls without them give the same.
+        assert_eq!(in_pool(work), want);
+        assert_eq!(spinners(), 0);
     }
 
     #[test]

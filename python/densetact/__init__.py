@@ -12,6 +12,8 @@ in and out:
 - ``calibrate(frame)``: a unit's fisheye from its saw-tooth frame (``dataset calibrate``).
 - ``label_session(session, sensor, out)``: a capture session into a dataset (``dataset label``).
 - ``read_frame(path)``: a camera frame file as the tools read it.
+- ``set_spin_ms(ms)``: keep the CPU workers polling that long after each prediction (frames
+  at a camera's rate come sooner, for a core kept busy); 0, the default, lets them sleep.
 
 Failures raise ``DenseTactError`` with the tools' messages (the file and the problem).
 """
@@ -31,6 +33,7 @@ from ._densetact import (
     Prediction,
     Predictor,
     read_frame,
+    set_spin_ms,
 )
 from . import _densetact
 
@@ -46,6 +49,7 @@ __all__ = [
     "collate",
     "label_session",
     "read_frame",
+    "set_spin_ms",
 ]
 
 PathLike = Union[str, "os.PathLike[str]"]

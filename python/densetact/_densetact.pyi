@@ -105,6 +105,9 @@ class NativeDataset:
 def read_frame(path: Union[str, "os.PathLike[str]"]) -> npt.NDArray[np.uint8]:
     """A camera frame file (PNG or JPEG) as HxWx3 uint8 RGB; damaged files are refused."""
 
+def set_spin_ms(ms: float) -> None:
+    """Keep the CPU workers polling ``ms`` ms after each prediction; 0 lets them sleep."""
+
 def calibrate(
     frame: Frame, radius_mm: float = 25.0, pitch_deg: float = 5.0, teeth: int = 17, max_uncertainty_px: float = 0.5
 ) -> Tuple[str, str]: ...

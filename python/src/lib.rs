@@ -36,5 +36,6 @@ fn _densetact(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(tools::read_frame, m)?)?;
     m.add_function(wrap_pyfunction!(tools::calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(tools::label_session, m)?)?;
+    m.add_function(wrap_pyfunction!(tools::set_spin_ms, m)?)?;
     Ok(())
 }

@@ -123,6 +123,21 @@ def test_threads_share_a_predictor(bundle, cases):
         assert all(np.array_equal(a, b) for a, b in zip(got, expected))
 
 
+def test_workers_polling_between_frames_change_no_prediction(bundle, cases):
+    p = densetact.Predictor(bundle)
+    frames = [densetact.read_frame(c["frame"]) for c in cases]
+    expected = [p.predict(f).depth_mm for f in frames]
+    densetact.set_spin_ms(20)
+    try:
+        got = [p.predict(f).depth_mm for f in frames]
+    finally:
+        densetact.set_spin_ms(0)
+    assert all(np.array_equal(a, b) for a, b in zip(got, expected))
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="milliseconds"):
+            densetact.set_spin_ms(bad)
+
+
 def test_an_elastomer_set_from_python_solves_the_predicted_contact(bundle, cases):
     p = densetact.Predictor(bundle)
     n = p.crop_size_px

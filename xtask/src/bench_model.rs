@@ -12,9 +12,9 @@ use model::{DenseDepthConfig, DepthLossConfig};
 use train::data::{DepthBatcher, DepthItem};
 use train::parallel::DataParallel;
 
-use crate::ort_peer::{OrtPeer, difference, interleave};
+use crate::ort_peer::{Frame, OrtPeer, Pacing, difference, interleave};
 use crate::peer::field;
-use crate::timing::{time_ms, time_ms_apart};
+use crate::timing::{process_cpu_ms, time_ms, time_ms_apart};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -57,10 +57,18 @@ pub struct Args {
     pool_hop_ab: bool,
     /// Idle this many milliseconds before each timed forward, as between a camera's frames (a
     /// frame every 33 ms at 30 fps): on a machine whose cores sleep when idle, a call after a
-    /// pause is slower than one in a busy loop. ONNX Runtime's runs, alternated with ours, are
-    /// 50 ms apart whatever this says.
+    /// pause is slower than one in a busy loop. Default: 50 with ONNX Runtime alternated with
+    /// ours (each side's timed forward that long after its previous one), 0 without.
+    #[arg(long)]
+    pause_ms: Option<u64>,
+    /// Keep rayon's workers polling for work this long after each forward, as ONNX Runtime's
+    /// spin by default (`model::backend::set_spin`); 0: they sleep.
     #[arg(long, default_value_t = 0)]
-    pause_ms: u64,
+    spin_ms: u64,
+    /// ONNX Runtime's workers sleep after a run instead of spinning (its
+    /// `session.intra_op.allow_spinning` 0).
+    #[arg(long)]
+    ort_no_spin: bool,
     /// Measure the forward pass only (for profiling).
     #[arg(long)]
     forward_only: bool,
@@ -102,6 +110,8 @@ impl Args {
 type Times = Option<Summary>;
 
 pub fn run(args: Args) -> Result<()> {
+    let spin = std::time::Duration::from_millis(args.spin_ms);
+    model::backend::set_spin(spin);
     let (config, [h, w]) = args.network();
     let encoder = config.encoder.clone();
     DenseDepthConfig::check_input_hw([h, w])?;
@@ -136,7 +146,8 @@ pub fn run(args: Args) -> Result<()> {
     let mut ort_peer = if on_cpu && run_peers(Peer::Onnxruntime) {
         let onnx = onnx_dir.path().join("densedepth.onnx");
         std::fs::write(&onnx, model::onnx::export(&untrained, &model_bundle_file(&config, [h, w]))?)?;
-        Some(OrtPeer::start(&args.python, &onnx.display().to_string(), channels, [h, w], threads)?)
+        let onnx = onnx.display().to_string();
+        Some(OrtPeer::start(&args.python, &onnx, channels, [h, w], threads, !args.ort_no_spin)?)
     } else {
         None
     };
@@ -152,23 +163,38 @@ pub fn run(args: Args) -> Result<()> {
         };
         let forward = match ort_peer.as_mut() {
             Some(peer) => {
-                let once = || crate::timing::once(run).0 * 1e3;
-                let both = interleave(args.reps, once, || peer.forward_ms(batch))?;
+                let mut cpu_mark = process_cpu_ms();
+                let ours = || {
+                    let ms = crate::timing::once(run).0 * 1e3;
+                    let now = process_cpu_ms();
+                    let frame = Frame { ms, cpu_ms: now - cpu_mark };
+                    cpu_mark = now;
+                    frame
+                };
+                let gap = std::time::Duration::from_millis(args.pause_ms.unwrap_or(50));
+                let both = interleave(args.reps, Pacing::new(gap, spin), ours, || peer.forward(batch))?;
                 // Beside the speed, how far apart the two outputs are on one input.
                 let values = |t: Tensor<4>| t.into_data().try_into_vec::<f32>().map_err(|e| anyhow::anyhow!("{e:?}"));
                 let ours = values(net.forward(images.clone()))?;
                 let theirs = peer.depth(onnx_dir.path(), batch, &values(images.clone())?)?;
                 let (abs, rel) = difference(&ours, &theirs)?;
                 println!(
-                    "batch {batch}: flex and ONNX Runtime {} alternately: ratio of each pair {}; outputs \
-                     {abs:.2e} apart at most ({rel:.1e} of ONNX Runtime's largest)",
+                    "batch {batch}: flex and ONNX Runtime {} alternately, each forward {} ms after its \
+                     previous one (flex's workers polling {} ms, ONNX Runtime's {}): ratio of each pair {}; \
+                     CPU ms per frame (the gap and the forward) flex {}, ONNX Runtime {}; outputs {abs:.2e} \
+                     apart at most ({rel:.1e} of ONNX Runtime's largest)",
                     peer.version,
-                    both.ratio.median_and_quartiles()
+                    gap.as_millis(),
+                    args.spin_ms,
+                    if args.ort_no_spin { "not" } else { "by default" },
+                    both.ratio.median_and_quartiles(),
+                    both.ours_cpu.median_and_quartiles(),
+                    both.peer_cpu.median_and_quartiles(),
                 );
                 ort.push((batch, both.peer));
                 both.ours
             }
-            None => time_ms_apart(args.reps, std::time::Duration::from_millis(args.pause_ms), run),
+            None => time_ms_apart(args.reps, std::time::Duration::from_millis(args.pause_ms.unwrap_or(0)), run),
         };
         // Where the forward time goes: the encoder alone (the decoder is the rest), called as
         // `DenseDepth::forward` calls it, from inside rayon's pool.

@@ -19,14 +19,23 @@ pub struct OrtPeer {
 }
 
 impl OrtPeer {
-    /// Starts the peer on `model` (an ONNX file) for inputs of `channels` x `hw` with `threads`.
-    pub fn start(python: &str, model: &str, channels: usize, [h, w]: [usize; 2], threads: usize) -> Result<Self> {
+    /// Starts the peer on `model` (an ONNX file) for inputs of `channels` x `hw` with `threads`,
+    /// its workers spinning after each run (ONNX Runtime's default) or not.
+    pub fn start(
+        python: &str,
+        model: &str,
+        channels: usize,
+        [h, w]: [usize; 2],
+        threads: usize,
+        spin: bool,
+    ) -> Result<Self> {
         let script = crate::peer::script("onnx_runtime.py");
         let [c, h, w, t] = [channels, h, w, threads].map(|v| v.to_string());
         let mut child = Command::new(python)
             .arg(&script)
             .args(["--model", model, "--channels", &c, "--height", &h, "--width", &w])
             .args(["--threads", &t])
+            .args((!spin).then_some("--no-spin"))
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .spawn()
@@ -50,15 +59,17 @@ impl OrtPeer {
         Ok(line.trim().to_string())
     }
 
-    /// Milliseconds of one forward of a batch of `batch` images (the peer warms up on the
-    /// first request of each batch size).
-    pub fn forward_ms(&mut self, batch: usize) -> Result<f64> {
+    /// One forward of a batch of `batch` images (the peer warms up on the first request of
+    /// each batch size).
+    pub fn forward(&mut self, batch: usize) -> Result<Frame> {
         writeln!(self.stdin, "{batch}")?;
         self.stdin.flush()?;
         let line = self.line()?;
-        line.strip_prefix("forward_ms=")
-            .and_then(|v| v.parse().ok())
-            .with_context(|| format!("the ONNX Runtime peer answered {line:?}"))
+        let field = |key| crate::peer::field(&line, key);
+        match (field("forward_ms="), field("cpu_ms=")) {
+            (Some(ms), Some(cpu_ms)) => Ok(Frame { ms, cpu_ms }),
+            _ => bail!("the ONNX Runtime peer answered {line:?}"),
+        }
     }
 
     /// ONNX Runtime's depth output for `images` (`batch` of them, [channels, height, width]
@@ -104,57 +115,83 @@ impl Drop for OrtPeer {
     }
 }
 
+/// One timed forward: its wall time, and its process's CPU time since the same side's previous
+/// forward ended (the gap before it, where polling workers spend theirs, and the forward).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Frame {
+    pub ms: f64,
+    pub cpu_ms: f64,
+}
+
 /// Both sides' times, one pair per repetition, and the ratio of each pair.
 pub struct Interleaved {
     pub ours: Summary,
     pub peer: Summary,
     /// `ours / peer` of each repetition's pair.
     pub ratio: Summary,
+    /// Each side's CPU milliseconds per timed frame.
+    pub ours_cpu: Summary,
+    pub peer_cpu: Summary,
 }
 
-/// Between two timed runs: long enough for the side that just ran to put its threads to sleep
-/// (ONNX Runtime's spin a while waiting for more work, as rayon's do), which would otherwise
-/// take the cores from the other side's run (the quickstart's 5 ms forward ran 1.5x ONNX
-/// Runtime's time without the pause).
-const PAUSE: std::time::Duration = std::time::Duration::from_millis(50);
+/// How the two sides' forwards are spaced.
+#[derive(Clone, Copy, Debug)]
+pub struct Pacing {
+    /// Between a side's untimed forward and its timed one: a camera's frame gap.
+    pub gap: std::time::Duration,
+    /// Idle before each side's turn, longer than either side's workers poll for work after a
+    /// run (ONNX Runtime's spin about 60 ms by default; ours `model::backend::set_spin`'s
+    /// window), so that neither side's polling takes a core from the other's run.
+    pub settle: std::time::Duration,
+}
 
-/// `reps` repetitions of `ours` and `peer` (each returning its milliseconds) after one warm-up
-/// of each, alternating which goes first so neither always runs on the other's heels, with a
-/// pause before each run.
+impl Pacing {
+    /// Frames `gap` apart, the sides apart by 100 ms more than our polling `spin` and at least
+    /// 200 ms.
+    pub fn new(gap: std::time::Duration, spin: std::time::Duration) -> Self {
+        let settle = (spin + std::time::Duration::from_millis(100)).max(std::time::Duration::from_millis(200));
+        Pacing { gap, settle }
+    }
+}
+
+/// `reps` pairs of timed forwards, `ours` and `peer` alternating which goes first so neither
+/// always runs on the other's heels. Each side's turn: idle `pacing.settle`, one untimed
+/// forward (the frame before), idle `pacing.gap`, the timed forward.
 pub fn interleave(
     reps: usize,
-    mut ours: impl FnMut() -> f64,
-    mut peer: impl FnMut() -> Result<f64>,
+    pacing: Pacing,
+    mut ours: impl FnMut() -> Frame,
+    mut peer: impl FnMut() -> Result<Frame>,
 ) -> Result<Interleaved> {
-    let mut ours = || {
-        std::thread::sleep(PAUSE);
-        ours()
+    let turn = |side: &mut dyn FnMut() -> Result<Frame>| -> Result<Frame> {
+        std::thread::sleep(pacing.settle);
+        side()?;
+        std::thread::sleep(pacing.gap);
+        side()
     };
-    let mut peer = || {
-        std::thread::sleep(PAUSE);
-        peer()
-    };
-    ours();
-    peer()?;
+    let mut ours = || Ok(ours());
     let mut pairs = Vec::with_capacity(reps);
     for rep in 0..reps {
         let pair = if rep % 2 == 0 {
-            let a = ours();
-            (a, peer()?)
+            let a = turn(&mut ours)?;
+            (a, turn(&mut peer)?)
         } else {
-            let b = peer()?;
-            (ours(), b)
+            let b = turn(&mut peer)?;
+            (turn(&mut ours)?, b)
         };
         pairs.push(pair);
     }
     Ok(summarise(&pairs))
 }
 
-fn summarise(pairs: &[(f64, f64)]) -> Interleaved {
+fn summarise(pairs: &[(Frame, Frame)]) -> Interleaved {
+    let of = |f: &dyn Fn(&(Frame, Frame)) -> f64| Summary::of(pairs.iter().map(f).collect::<Vec<_>>());
     Interleaved {
-        ours: Summary::of(pairs.iter().map(|p| p.0).collect::<Vec<_>>()),
-        peer: Summary::of(pairs.iter().map(|p| p.1).collect::<Vec<_>>()),
-        ratio: Summary::of(pairs.iter().map(|p| p.0 / p.1).collect::<Vec<_>>()),
+        ours: of(&|p| p.0.ms),
+        peer: of(&|p| p.1.ms),
+        ratio: of(&|p| p.0.ms / p.1.ms),
+        ours_cpu: of(&|p| p.0.cpu_ms),
+        peer_cpu: of(&|p| p.1.cpu_ms),
     }
 }
 
@@ -165,8 +202,10 @@ mod tests {
     #[test]
     fn each_pair_is_compared_within_itself() {
         // The machine halves its speed half way: each pair still reads 0.5.
-        let pairs = [(10.0, 20.0), (11.0, 22.0), (20.0, 40.0), (22.0, 44.0)];
+        let frame = |ms| Frame { ms, cpu_ms: 2.0 * ms };
+        let pairs = [(10.0, 20.0), (11.0, 22.0), (20.0, 40.0), (22.0, 44.0)].map(|(a, b)| (frame(a), frame(b)));
         let i = summarise(&pairs);
+        assert_eq!((i.ours_cpu.median, i.peer_cpu.median), (31.0, 62.0));
         assert_eq!((i.ratio.q1, i.ratio.median, i.ratio.q3), (0.5, 0.5, 0.5));
         assert_eq!(i.ours.median, 15.5);
         assert_eq!(i.peer.median, 31.0);
@@ -210,9 +249,13 @@ mod tests {
         let file = dir.path().join("tiny.onnx");
         let bundle = crate::bench_model::model_bundle_file(&config, hw);
         std::fs::write(&file, model::onnx::export(&untrained, &bundle).unwrap()).unwrap();
-        let mut peer = OrtPeer::start("python3", file.to_str().unwrap(), channels, hw, 1).unwrap();
+        for spin in [false, true] {
+            let mut peer = OrtPeer::start("python3", file.to_str().unwrap(), channels, hw, 1, spin).unwrap();
+            let frame = peer.forward(2).unwrap();
+            assert!(frame.ms > 0.0 && frame.cpu_ms > 0.0, "{frame:?}");
+        }
+        let mut peer = OrtPeer::start("python3", file.to_str().unwrap(), channels, hw, 1, true).unwrap();
         assert!(!peer.version.is_empty());
-        assert!(peer.forward_ms(2).unwrap() > 0.0);
         let images = Tensor::<4>::random([2, channels, hw[0], hw[1]], Distribution::Uniform(0.0, 1.0), &device);
         let ours = net.forward(images.clone()).into_data().try_into_vec::<f32>().unwrap();
         let theirs = peer.depth(dir.path(), 2, &images.into_data().try_into_vec::<f32>().unwrap()).unwrap();
@@ -227,21 +270,30 @@ mod tests {
     }
 
     #[test]
-    fn the_order_alternates_after_one_warm_up_each() {
+    fn each_timed_forward_follows_an_untimed_one_and_the_order_alternates() {
         let log = std::cell::RefCell::new(Vec::new());
+        let ms = std::time::Duration::from_millis;
+        let pacing = Pacing { gap: ms(4), settle: ms(6) };
+        let started = std::time::Instant::now();
         let i = interleave(
             3,
+            pacing,
             || {
                 log.borrow_mut().push('o');
-                1.0
+                Frame { ms: 1.0, cpu_ms: 3.0 }
             },
             || {
                 log.borrow_mut().push('p');
-                Ok(4.0)
+                Ok(Frame { ms: 4.0, cpu_ms: 5.0 })
             },
         )
         .unwrap();
-        assert_eq!(log.into_inner().into_iter().collect::<String>(), "opoppoop");
-        assert_eq!(i.ratio.median, 0.25);
+        assert_eq!(log.into_inner().into_iter().collect::<String>(), "ooppppoooopp");
+        assert_eq!((i.ratio.median, i.ours_cpu.median, i.peer_cpu.median), (0.25, 3.0, 5.0));
+        // Six turns, each idle for the settle and the gap.
+        assert!(started.elapsed() >= 6 * (pacing.gap + pacing.settle));
+        // The settle outlasts our polling and ONNX Runtime's (60 ms).
+        assert_eq!(Pacing::new(ms(50), ms(0)).settle, ms(200));
+        assert_eq!(Pacing::new(ms(33), ms(150)).settle, ms(250));
     }
 }

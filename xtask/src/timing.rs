@@ -35,6 +35,18 @@ pub fn time_ms_apart(reps: usize, pause: Duration, mut f: impl FnMut()) -> forma
     formats::stats::Summary::of(times.collect::<Vec<_>>())
 }
 
+/// Milliseconds of CPU time this process has used, all its threads together: what polling
+/// workers cost between calls, which wall time does not show.
+#[allow(unsafe_code)]
+pub fn process_cpu_ms() -> f64 {
+    let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: libc's promise: `clock_gettime` writes one `timespec` through the pointer, which
+    // points at a live local of that type; the clock id is one POSIX defines.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) };
+    assert_eq!(rc, 0, "clock_gettime(CLOCK_PROCESS_CPUTIME_ID) failed");
+    t.tv_sec as f64 * 1e3 + t.tv_nsec as f64 * 1e-6
+}
+
 /// Seconds of a single run of `f` (no warm-up), and its result.
 pub fn once<T>(f: impl FnOnce() -> T) -> (f64, T) {
     let t = Instant::now();
@@ -61,5 +73,22 @@ mod tests {
         time_ms(reps, || back_to_back += 1);
         assert_eq!(back_to_back, reps + 1);
         assert!(start.elapsed() < pause, "no pause without one asked for");
+    }
+
+    #[test]
+    fn process_cpu_time_counts_work_on_other_threads() {
+        // Other tests run in this process meanwhile, so only a lower bound holds: the main
+        // thread's own clock would see none of this.
+        let before = process_cpu_ms();
+        let busy = std::thread::spawn(|| {
+            let t = Instant::now();
+            while t.elapsed() < Duration::from_millis(40) {
+                std::hint::spin_loop();
+            }
+        });
+        busy.join().unwrap();
+        let worked = process_cpu_ms() - before;
+        // The other thread's 40 ms busy, less what a loaded machine took from it.
+        assert!(worked > 10.0, "a thread's 40 ms busy loop counted {worked} ms");
     }
 }
