@@ -69,7 +69,7 @@ static SPINNERS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize
 /// a 2-vCPU VM, a job scattered at a forward's start began on the second worker 2.2 ms later),
 /// so the quickstart's 128x128 forward took 5.8 ms 50 ms after the last one and 3.7 ms back to
 /// back; polling through the gap it takes 3.9-4.6 ms, for the price of a core kept busy
-/// (BENCHMARKS.md, "Keeping a worker polling between frames"). ONNX Runtime does this by
+/// (BENCHMARKS.md, "Each side's workers polling between frames"). ONNX Runtime does this by
 /// default: its workers spin about 60 ms after each run.
 pub fn set_spin(window: std::time::Duration) {
     let ns = u64::try_from(window.as_nanos()).unwrap_or(u64::MAX);
