@@ -274,6 +274,10 @@ fn the_command_streams_a_glob_stops_at_max_frames_and_refuses_bad_sources() {
             .collect::<Vec<_>>(),
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Each summary says what its latencies were measured with.
+    let polled_json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(polled.join("stream.json")).unwrap()).unwrap();
+    assert_eq!((json["spin_ms"].as_f64(), polled_json["spin_ms"].as_f64()), (Some(0.0), Some(30.0)));
     for entry in std::fs::read_dir(out.join("depth")).unwrap() {
         let name = entry.unwrap().file_name();
         let [a, b] = [&out, &polled].map(|d| std::fs::read(d.join("depth").join(&name)).unwrap());

@@ -101,6 +101,12 @@ pub fn set_spin(window: std::time::Duration) {
     }
 }
 
+/// The polling window [`set_spin`] set (zero: off), for reports to say what their latencies
+/// were measured with.
+pub fn spin() -> std::time::Duration {
+    std::time::Duration::from_nanos(SPIN_NS.load(std::sync::atomic::Ordering::SeqCst))
+}
+
 /// Nanoseconds since the first call: the polling tasks' clock.
 fn clock_ns() -> u64 {
     static START: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
@@ -327,6 +333,7 @@ mod tests {
         let work = || (0..200_000u64).into_par_iter().map(|i| i * i % 7).sum::<u64>();
         let want: u64 = (0..200_000u64).map(|i| i * i % 7).sum();
         set_spin(std::time::Duration::from_secs(60));
+        assert_eq!(spin(), std::time::Duration::from_secs(60));
         // A polling task that started while a call ran leaves and hands its place on: the count
         // may be off for a moment.
         let settles_at = |count: usize| {
@@ -342,6 +349,7 @@ mod tests {
             assert!(settles_at(spinners_wanted()), "{} polling tasks, {} wanted", spinners(), spinners_wanted());
         }
         set_spin(std::time::Duration::ZERO);
+        assert_eq!(spin(), std::time::Duration::ZERO);
         assert!(settles_at(0), "the polling tasks must leave once turned off");
         // And calls without them give the same.
         assert_eq!(in_pool(work), want);

@@ -84,6 +84,9 @@ pub struct StreamReport {
     /// Times the reference frame moved towards the untouched frames (`--follow-reference`; 0
     /// without).
     pub reference_updates: u64,
+    /// How long the network's CPU workers kept polling for work after each frame
+    /// (`--spin-ms`; 0: they slept), which the latencies depend on.
+    pub spin_ms: f64,
     #[serde(skip)]
     pub frames: Vec<FrameRecord>,
 }
@@ -106,6 +109,7 @@ impl StreamReport {
             network_latency_ms: Percentiles::default(),
             gated_latency_ms: Percentiles::default(),
             reference_updates: 0,
+            spin_ms: model::backend::spin().as_secs_f64() * 1e3,
             frames: Vec::new(),
         }
     }
