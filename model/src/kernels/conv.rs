@@ -1,11 +1,12 @@
 //! Convolutions that run as large matrix products on flex, forward and backward.
 //!
 //! On flex (f32) outside autodiff, `conv2d_act` calls `conv_forward` directly, with the layer's
-//! bias and activation applied while the output is in cache. Under autodiff on flex, stride-1
-//! layers go through a Burn backend extension whose forward and gradients are the same matrix
-//! products (`gemm_conv`), with a handwritten backward. Every other case (other backends,
-//! dtypes, strided layers under autodiff) is Burn's own `Conv2d::forward`, so results agree
-//! everywhere within float rounding.
+//! bias and activation applied while the output is in cache. Under autodiff on flex, layers go
+//! through a Burn backend extension whose forward and gradients are the same matrix products
+//! (`gemm_conv`), with a handwritten backward; strided ones too (the stem: taking it off
+//! Burn's lowering of the weight gradient took a fifth off the quickstart's training step).
+//! Every other case (other backends, dtypes, dilation, groups) is Burn's own
+//! `Conv2d::forward`, so results agree everywhere within float rounding.
 
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Flex, backend_extension};
@@ -20,28 +21,38 @@ use super::flex::{contiguous, flex_f32, flex_kind, flex_tensor, from_flex, slice
 use super::gemm_conv;
 use super::shared::{Activation, ConvShape, Epilogue};
 
-/// A stride-1, square-kernel convolution with the same padding on every side.
+/// A square-kernel convolution with the same padding on every side and the same stride along
+/// both axes.
 #[backend_extension(Flex, Autodiff: cfg(feature = "autodiff"))]
 pub trait GemmConvBackend: Backend {
     /// `x` [batch, in, h, w] with `weight` [out, in, k, k].
-    fn gemm_conv2d(x: FloatTensor<Self>, weight: FloatTensor<Self>, padding: usize) -> FloatTensor<Self>;
+    fn gemm_conv2d(x: FloatTensor<Self>, weight: FloatTensor<Self>, padding: usize, stride: usize)
+    -> FloatTensor<Self>;
     /// The same plus `bias` [out] (the extension takes no optional tensors).
     fn gemm_conv2d_bias(
         x: FloatTensor<Self>,
         weight: FloatTensor<Self>,
         bias: FloatTensor<Self>,
         padding: usize,
+        stride: usize,
     ) -> FloatTensor<Self>;
 }
 
 /// The gradients a backend computes for `GemmConvBackend`'s autodiff form.
 pub trait GemmConvGrads: GemmConvBackend {
-    fn gemm_conv2d_input_grad(grad: FloatTensor<Self>, weight: FloatTensor<Self>, padding: usize) -> FloatTensor<Self>;
+    /// The input's gradient, for an input of `size` ([height, width]: a strided convolution's
+    /// output does not tell the rows and columns its last step left out).
+    fn gemm_conv2d_input_grad(
+        grad: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        size: [usize; 2],
+        padding_stride: [usize; 2],
+    ) -> FloatTensor<Self>;
     fn gemm_conv2d_weight_grad(
         x: FloatTensor<Self>,
         grad: FloatTensor<Self>,
         kernel: usize,
-        padding: usize,
+        padding_stride: [usize; 2],
     ) -> FloatTensor<Self>;
 }
 
@@ -79,38 +90,54 @@ fn flex_conv(
 }
 
 impl GemmConvBackend for Flex {
-    fn gemm_conv2d(x: FlexTensor, weight: FlexTensor, padding: usize) -> FlexTensor {
-        flex_conv(x, weight, None, [padding, 1], Activation::Identity, false)
+    fn gemm_conv2d(x: FlexTensor, weight: FlexTensor, padding: usize, stride: usize) -> FlexTensor {
+        flex_conv(x, weight, None, [padding, stride], Activation::Identity, false)
     }
 
-    fn gemm_conv2d_bias(x: FlexTensor, weight: FlexTensor, bias: FlexTensor, padding: usize) -> FlexTensor {
-        flex_conv(x, weight, Some(bias), [padding, 1], Activation::Identity, false)
+    fn gemm_conv2d_bias(
+        x: FlexTensor,
+        weight: FlexTensor,
+        bias: FlexTensor,
+        padding: usize,
+        stride: usize,
+    ) -> FlexTensor {
+        flex_conv(x, weight, Some(bias), [padding, stride], Activation::Identity, false)
     }
 }
 
 impl GemmConvGrads for Flex {
-    fn gemm_conv2d_input_grad(grad: FlexTensor, weight: FlexTensor, padding: usize) -> FlexTensor {
+    fn gemm_conv2d_input_grad(
+        grad: FlexTensor,
+        weight: FlexTensor,
+        [height, width]: [usize; 2],
+        [padding, stride]: [usize; 2],
+    ) -> FlexTensor {
         let (grad, weight) = (contiguous(grad), contiguous(weight));
         let (w, g) = (weight.layout().shape(), grad.layout().shape());
-        let k = w[2];
         let s = ConvShape {
             batch: g[0],
             channels_in: w[1],
             channels_out: w[0],
-            height: g[2] + k - 1 - 2 * padding,
-            width: g[3] + k - 1 - 2 * padding,
-            kernel: k,
+            height,
+            width,
+            kernel: w[2],
             padding,
-            stride: 1,
+            stride,
         };
+        assert_eq!([g[2], g[3]], [s.out_height(), s.out_width()], "conv output gradient's size");
         let dx = gemm_conv::input_grad(slice(&grad), slice(&weight), &s);
         flex_tensor(dx, &[s.batch, s.channels_in, s.height, s.width])
     }
 
-    fn gemm_conv2d_weight_grad(x: FlexTensor, grad: FlexTensor, kernel: usize, padding: usize) -> FlexTensor {
+    fn gemm_conv2d_weight_grad(
+        x: FlexTensor,
+        grad: FlexTensor,
+        kernel: usize,
+        [padding, stride]: [usize; 2],
+    ) -> FlexTensor {
         let (x, grad) = (contiguous(x), contiguous(grad));
         let channels = [grad.layout().shape()[1], x.layout().shape()[1]];
-        let s = shape_of(&x, channels, kernel, padding, 1);
+        let s = shape_of(&x, channels, kernel, padding, stride);
         let dw = gemm_conv::weight_grad(slice(&x), slice(&grad), &s);
         flex_tensor(dw, &[s.channels_out, s.channels_in, kernel, kernel])
     }
@@ -133,36 +160,42 @@ mod autodiff {
     struct GemmConvBackward;
 
     impl<B: GemmConvGrads> Backward<B, 2> for GemmConvBackward {
-        /// Checkpointed input and weight, and the padding.
-        type State = (NodeId, NodeId, usize);
+        /// Checkpointed input and weight, and the padding and stride.
+        type State = (NodeId, NodeId, [usize; 2]);
 
         fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, checkpointer: &mut Checkpointer) {
             let [node_x, node_weight] = ops.parents;
             let grad = grads.consume::<B>(&ops.node);
-            let (x_state, weight_state, padding) = ops.state;
+            let (x_state, weight_state, padding_stride) = ops.state;
             let x = checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(x_state);
             let weight = checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(weight_state);
             let kernel = weight.shape().dims::<4>()[2];
+            let [_, _, height, width] = x.shape().dims::<4>();
             if let Some(node) = node_weight {
-                grads.register::<B>(node.id, B::gemm_conv2d_weight_grad(x, grad.clone(), kernel, padding));
+                grads.register::<B>(node.id, B::gemm_conv2d_weight_grad(x, grad.clone(), kernel, padding_stride));
             }
             if let Some(node) = node_x {
-                grads.register::<B>(node.id, B::gemm_conv2d_input_grad(grad, weight, padding));
+                grads.register::<B>(node.id, B::gemm_conv2d_input_grad(grad, weight, [height, width], padding_stride));
             }
         }
     }
 
     impl<B: GemmConvGrads, C: CheckpointStrategy> GemmConvBackend for Autodiff<B, C> {
-        fn gemm_conv2d(x: FloatTensor<Self>, weight: FloatTensor<Self>, padding: usize) -> FloatTensor<Self> {
+        fn gemm_conv2d(
+            x: FloatTensor<Self>,
+            weight: FloatTensor<Self>,
+            padding: usize,
+            stride: usize,
+        ) -> FloatTensor<Self> {
             match GemmConvBackward.prepare::<C>([x.node(), weight.node()]).compute_bound().stateful() {
                 OpsKind::Tracked(mut prep) => {
                     let x_state = prep.checkpoint(&x);
                     let weight_state = prep.checkpoint(&weight);
-                    let out = B::gemm_conv2d(x.into_primitive(), weight.into_primitive(), padding);
-                    prep.finish((x_state, weight_state, padding), out)
+                    let out = B::gemm_conv2d(x.into_primitive(), weight.into_primitive(), padding, stride);
+                    prep.finish((x_state, weight_state, [padding, stride]), out)
                 }
                 OpsKind::UnTracked(prep) => {
-                    prep.finish(B::gemm_conv2d(x.into_primitive(), weight.into_primitive(), padding))
+                    prep.finish(B::gemm_conv2d(x.into_primitive(), weight.into_primitive(), padding, stride))
                 }
             }
         }
@@ -173,9 +206,10 @@ mod autodiff {
             weight: FloatTensor<Self>,
             bias: FloatTensor<Self>,
             padding: usize,
+            stride: usize,
         ) -> FloatTensor<Self> {
             let channels = bias.shape().num_elements();
-            let out = Self::gemm_conv2d(x, weight, padding);
+            let out = Self::gemm_conv2d(x, weight, padding, stride);
             Self::float_add(out, Self::float_reshape(bias, [1, channels, 1, 1].into()))
         }
     }
@@ -193,15 +227,14 @@ pub(crate) fn symmetric_padding(padding: &PaddingConfig2d) -> Option<usize> {
 }
 
 /// The padding and stride of `conv` when the matrix-product path can run it on `x`: flex
-/// (directly, or under autodiff with stride 1), f32, dilation 1, one group, a square kernel,
-/// equal padding on every side no larger than `kernel - 1`.
+/// (directly or under autodiff), f32, dilation 1, one group, a square kernel, equal padding on
+/// every side no larger than `kernel - 1`, the same stride along both axes.
 pub(crate) fn gemm_padding(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize)> {
-    let kind = flex_kind(&x.device());
-    let (on_flex, tracked) = (kind.is_some(), kind == Some(true));
+    let on_flex = flex_kind(&x.device()).is_some();
     let [k, k2] = conv.kernel_size;
     let padding = symmetric_padding(&conv.padding)?;
     let [stride, stride2] = conv.stride;
-    let strided_ok = stride == stride2 && stride >= 1 && (stride == 1 || !tracked);
+    let strided_ok = stride == stride2 && stride >= 1;
     let plain = strided_ok && conv.dilation == [1, 1] && conv.groups == 1 && k == k2 && padding < k;
     let f32s = x.dtype() == DType::F32 && conv.weight.val().dtype() == DType::F32;
     let [_, _, h, w] = x.dims();
@@ -221,8 +254,10 @@ pub(crate) fn conv2d_act(conv: &Conv2d, x: Tensor<4>, activation: Activation) ->
     let (x, weight) = (x.into_dispatch(), conv.weight.val().into_dispatch());
     activate(
         Tensor::from_dispatch(match &conv.bias {
-            Some(bias) => <D as GemmConvBackend>::gemm_conv2d_bias(x, weight, bias.val().into_dispatch(), padding),
-            None => <D as GemmConvBackend>::gemm_conv2d(x, weight, padding),
+            Some(bias) => {
+                <D as GemmConvBackend>::gemm_conv2d_bias(x, weight, bias.val().into_dispatch(), padding, stride)
+            }
+            None => <D as GemmConvBackend>::gemm_conv2d(x, weight, padding, stride),
         }),
         activation,
     )
@@ -277,10 +312,10 @@ mod tests {
         assert_eq!(gemm_padding(&same, &x), Some((1, 1)));
         assert_eq!(gemm_padding(&pointwise, &x), Some((0, 1)));
         assert_eq!(gemm_padding(&valid, &x.clone().slice([0..1, 0..3, 0..8, 0..8])), Some((0, 1)));
-        // Strided layers only outside autodiff: their backward is Burn's.
+        // Strided layers too, under autodiff as well: their backward is this crate's.
         assert_eq!(gemm_padding(&strided, &x), Some((3, 2)));
         #[cfg(feature = "autodiff")]
-        assert_eq!(gemm_padding(&strided, &Tensor::<4>::zeros([1, 6, 8, 8], &device.clone().autodiff())), None);
+        assert_eq!(gemm_padding(&strided, &Tensor::<4>::zeros([1, 6, 8, 8], &device.clone().autodiff())), Some((3, 2)));
         let uneven = Conv2dConfig::new([6, 4], [3, 3]).with_stride([2, 1]).init(&device);
         assert_eq!(gemm_padding(&uneven, &x), None);
         let lopsided =
@@ -304,12 +339,13 @@ mod tests {
     }
 
     /// The handwritten backward against Burn's autodiff of its own convolution: input, weight
-    /// and bias gradients of the same loss.
+    /// and bias gradients of the same loss, strided layers included (the 7x9 input leaves
+    /// rows and columns that a stride's last step does not reach).
     #[cfg(feature = "autodiff")]
     #[test]
     fn gradients_equal_burns_autodiff() {
         let device = crate::backend::default_device().autodiff();
-        for conv in layers(&device).into_iter().filter(|conv| conv.stride == [1, 1]) {
+        for conv in layers(&device) {
             let [_, c, _, _] = conv.weight.dims();
             let x = Tensor::<4>::random([2, c, 7, 9], Distribution::Normal(0.0, 1.0), &device).require_grad();
             assert!(gemm_padding(&conv, &x).is_some(), "autodiff on flex takes the matrix path");

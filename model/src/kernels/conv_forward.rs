@@ -18,8 +18,8 @@ use super::{direct, winograd};
 
 /// Output positions per task when the input is gathered, and the most gathered rows (channel
 /// and tap pairs) at a time: together about 2 MB per thread, which the product reads from cache.
-const GATHER_COLUMNS: usize = 512;
-const GATHER_ROWS: usize = 1152;
+pub(crate) const GATHER_COLUMNS: usize = 512;
+pub(crate) const GATHER_ROWS: usize = 1152;
 /// Output positions per task for a 1x1 convolution read in place.
 const POINTWISE_COLUMNS: usize = 2048;
 
@@ -62,6 +62,29 @@ impl Phases {
     fn run(&self, row: usize, start: usize, len: usize, stride: usize) -> &[f32] {
         let base = row * stride * self.phase_len + (start % stride) * self.phase_len + start / stride;
         &self.values[base..base + len]
+    }
+}
+
+/// One image's input under each tap of a strided or unstrided convolution, gathered for any
+/// output positions without a prologue: what a convolution's weight gradient multiplies its
+/// output gradient by when the stride keeps the taps from being windows of one padded image
+/// (`gemm_conv::weight_grad`).
+pub(crate) struct Taps<'a> {
+    image: &'a [f32],
+    phases: Option<Phases>,
+    shape: ConvShape,
+}
+
+impl<'a> Taps<'a> {
+    pub(crate) fn new(image: &'a [f32], s: &ConvShape) -> Self {
+        assert_eq!(image.len(), s.channels_in * s.height * s.width, "conv input size");
+        Taps { image, phases: (s.stride > 1).then(|| Phases::of(image, s)), shape: *s }
+    }
+
+    /// Rows `channels` x taps for the output positions `cols` into `into`, as `gather` lays
+    /// them out (row `(ic - channels.start) * k * k + tap`, one column per position).
+    pub(crate) fn gather(&self, into: &mut [f32], channels: Range<usize>, cols: Range<usize>) {
+        gather(into, self.image, self.phases.as_ref(), &self.shape, None, channels, cols);
     }
 }
 

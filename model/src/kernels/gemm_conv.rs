@@ -8,10 +8,13 @@
 //! convolution with the batch as channels, which becomes one thin matrix product per input
 //! channel (about 4x slower for DenseNet's 3x3 layers here); this form keeps every product
 //! large. Each output row carries `k - 1` padding columns, zero in the spread output gradient.
-//! The input gradient is a forward convolution with the weight transposed and flipped.
+//! The input gradient is a forward convolution with the weight transposed and flipped. A
+//! strided convolution (DenseNet's 7x7 stem) takes its taps from the forward's gathered input
+//! instead, and its input gradient starts from the output gradient spread to stride 1.
 
 use rayon::prelude::*;
 
+use super::conv_forward::{GATHER_COLUMNS, GATHER_ROWS, Taps};
 use super::shared::{ConvShape, column_chunks, matmul};
 
 /// Columns per weight-gradient task, so that a task's window of the image stays in cache across
@@ -43,10 +46,29 @@ fn pad_image(image: &[f32], s: &ConvShape, channels: usize) -> Vec<f32> {
     padded
 }
 
-/// The gradient of the input: `grad` ([batch, channels_out, out_height, out_width]) convolved
-/// with the weight transposed and flipped.
+/// The gradient of the input: `grad` ([batch, channels_out, out_height, out_width]), spread to
+/// stride 1 where the convolution is strided, convolved with the weight transposed and flipped.
 pub(crate) fn input_grad(grad: &[f32], weight: &[f32], s: &ConvShape) -> Vec<f32> {
     let (c, o, k) = (s.channels_in, s.channels_out, s.kernel);
+    let t = s.transposed();
+    assert_eq!(grad.len(), s.batch * o * s.out_height() * s.out_width(), "conv output gradient size");
+    let spread;
+    let grad = if s.stride == 1 {
+        grad
+    } else {
+        // Output position (i, j) sits at (i * stride, j * stride) of a stride-1 output; the
+        // rows and columns a stride skips, and any the last step did not reach, stay zero.
+        let (wo, st) = (s.out_width(), s.stride);
+        let mut dilated = vec![0.0f32; s.batch * o * t.height * t.width];
+        dilated.par_chunks_mut(t.height * t.width).zip(grad.par_chunks(s.out_height() * wo)).for_each(|(dst, src)| {
+            for (i, row) in src.chunks_exact(wo).enumerate() {
+                let dst = &mut dst[i * st * t.width..][..t.width];
+                dst.iter_mut().step_by(st).zip(row).for_each(|(d, v)| *d = *v);
+            }
+        });
+        spread = dilated;
+        &spread[..]
+    };
     let mut flipped = vec![0.0f32; weight.len()];
     for oc in 0..o {
         for ic in 0..c {
@@ -55,14 +77,16 @@ pub(crate) fn input_grad(grad: &[f32], weight: &[f32], s: &ConvShape) -> Vec<f32
             }
         }
     }
-    super::conv_forward::forward(grad, &flipped, None, &s.transposed())
+    super::conv_forward::forward(grad, &flipped, None, &t)
 }
 
 /// The gradient of the weight: [channels_out, channels_in, kernel, kernel]. The inner dimension
 /// (every output position of every image) is split across threads, each summing into its own
 /// buffer, because the product's outer dimensions are too small to split well.
 pub(crate) fn weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
-    assert_eq!(s.stride, 1, "gradients of strided convolutions are Burn's");
+    if s.stride > 1 {
+        return strided_weight_grad(x, grad, s);
+    }
     let (c, o, k) = (s.channels_in, s.channels_out, s.kernel);
     let (ho, wo, wp, n, len) = (s.out_height(), s.out_width(), s.padded_width(), s.columns(), s.padded_len());
     assert_eq!(x.len(), s.batch * c * s.height * s.width, "conv input size");
@@ -83,43 +107,98 @@ pub(crate) fn weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
             wide = spread;
             (&padded[..], &wide[..])
         };
-        // The columns fall into a fixed number of contiguous groups, each summed into a buffer
-        // of its own on whichever thread takes it; the buffers are then added in group order.
-        // Rayon's `fold` would make one buffer per split, and its splits follow work stealing,
-        // so the sum's rounding (and a training run's weights) would follow the schedule.
         let chunks = column_chunks(n, 512, MAX_COLUMNS);
-        let groups = reduction_groups(chunks.len());
-        let partials: Vec<Vec<f32>> = groups
-            .into_par_iter()
-            .map(|group| {
-                let mut part = vec![0.0f32; size];
-                for cols in &chunks[group] {
-                    for tap in 0..k * k {
-                        let shift = (tap / k) * wp + tap % k;
-                        // SAFETY: `part` is [o, c, k, k] written at stride k*k from `tap`; the
-                        // window of `flat` ends at most at `padded_len`.
-                        unsafe {
-                            matmul(
-                                [o, c, cols.len()],
-                                part.as_mut_ptr().add(tap),
-                                [k * k, c * k * k],
-                                true,
-                                g.as_ptr().add(cols.start),
-                                [1, n],
-                                flat.as_ptr().add(shift + cols.start),
-                                [len, 1],
-                            );
-                        }
+        add_in_groups(&mut total, &chunks, |group, part| {
+            for cols in group {
+                for tap in 0..k * k {
+                    let shift = (tap / k) * wp + tap % k;
+                    // SAFETY: `part` is [o, c, k, k] written at stride k*k from `tap`; the
+                    // window of `flat` ends at most at `padded_len`.
+                    unsafe {
+                        matmul(
+                            [o, c, cols.len()],
+                            part.as_mut_ptr().add(tap),
+                            [k * k, c * k * k],
+                            true,
+                            g.as_ptr().add(cols.start),
+                            [1, n],
+                            flat.as_ptr().add(shift + cols.start),
+                            [len, 1],
+                        );
                     }
                 }
-                part
-            })
-            .collect();
-        for part in &partials {
-            total.iter_mut().zip(part).for_each(|(t, p)| *t += p);
-        }
+            }
+        });
     }
     total
+}
+
+/// `weight_grad` of a strided convolution: its taps are no longer windows of one padded image,
+/// so each task gathers its output positions' input under every tap (as the forward does) and
+/// multiplies the output gradient by it, `[o, positions] x [positions, channels * k * k]`, one
+/// product per block of channels. The positions are summed in fixed groups, as above.
+fn strided_weight_grad(x: &[f32], grad: &[f32], s: &ConvShape) -> Vec<f32> {
+    let (c, o, kk) = (s.channels_in, s.channels_out, s.kernel * s.kernel);
+    let (plane, positions) = (s.height * s.width, s.out_height() * s.out_width());
+    assert_eq!(x.len(), s.batch * c * plane, "conv input size");
+    assert_eq!(grad.len(), s.batch * o * positions, "conv output gradient size");
+    let block = (GATHER_ROWS / kk).clamp(1, c.max(1));
+    let chunks = column_chunks(positions, 64, GATHER_COLUMNS);
+    let mut total = vec![0.0f32; o * c * kk];
+    for (image, image_grad) in x.chunks_exact(c * plane).zip(grad.chunks_exact(o * positions)) {
+        let taps = Taps::new(image, s);
+        add_in_groups(&mut total, &chunks, |group, part| {
+            let mut gathered = vec![0.0f32; block * kk * GATHER_COLUMNS.min(positions)];
+            for cols in group {
+                let n = cols.len();
+                for c0 in (0..c).step_by(block) {
+                    let channels = c0..(c0 + block).min(c);
+                    let rows = channels.len() * kk;
+                    taps.gather(&mut gathered[..rows * n], channels, cols.clone());
+                    // SAFETY: `part` is [o, c * kk], written in columns `c0 * kk ..` for `rows`
+                    // columns; the gradient's row `oc` is read at `cols`, inside its
+                    // `positions`; `gathered` holds `rows` rows of `n`.
+                    unsafe {
+                        matmul(
+                            [o, rows, n],
+                            part.as_mut_ptr().add(c0 * kk),
+                            [1, c * kk],
+                            true,
+                            image_grad.as_ptr().add(cols.start),
+                            [1, positions],
+                            gathered.as_ptr(),
+                            [n, 1],
+                        );
+                    }
+                }
+            }
+        });
+    }
+    total
+}
+
+/// Adds to `total` what `task` sums over all of `chunks` (column ranges), computed in a fixed
+/// number of contiguous groups of them, each summed into a buffer of its own on whichever thread
+/// takes it; the buffers are then added in group order. Rayon's `fold` would make one buffer per
+/// split, and its splits follow work stealing, so the sum's rounding (and a training run's
+/// weights) would follow the schedule.
+fn add_in_groups(
+    total: &mut [f32],
+    chunks: &[std::ops::Range<usize>],
+    task: impl Fn(&[std::ops::Range<usize>], &mut [f32]) + Sync,
+) {
+    let size = total.len();
+    let partials: Vec<Vec<f32>> = reduction_groups(chunks.len())
+        .into_par_iter()
+        .map(|group| {
+            let mut part = vec![0.0f32; size];
+            task(&chunks[group], &mut part);
+            part
+        })
+        .collect();
+    for part in &partials {
+        total.iter_mut().zip(part).for_each(|(t, p)| *t += p);
+    }
 }
 
 /// `chunks` chunk indices cut into at most one contiguous range per rayon thread: as many
@@ -186,7 +265,8 @@ mod tests {
         ConvShape { batch: 1, channels_in: 2, channels_out: 3, height: 6, width: 5, kernel: 5, padding: 2, stride: 1 },
     ];
 
-    /// Forward-only shapes: strided, like DenseNet's 7x7 stem.
+    /// Strided shapes, like DenseNet's 7x7 stem, and a stride that leaves the last rows and
+    /// columns out.
     const STRIDED: [ConvShape; 2] = [
         ConvShape {
             batch: 2,
@@ -221,7 +301,7 @@ mod tests {
     /// the forward with a one-hot input.
     #[test]
     fn gradients_match_one_hot_forwards() {
-        for s in SHAPES {
+        for s in SHAPES.into_iter().chain(STRIDED) {
             let (nx, nw) =
                 (s.batch * s.channels_in * s.height * s.width, s.channels_out * s.channels_in * s.kernel * s.kernel);
             let x = values(nx, 4);
@@ -246,10 +326,11 @@ mod tests {
 
     /// The weight gradient's sum does not follow the schedule: a training step gives the same
     /// weights whether it runs from inside rayon's pool or outside it, run after run. A shape
-    /// with many column chunks, so that the pool has something to steal.
+    /// with many column chunks, so that the pool has something to steal; strided (the stem's
+    /// gathered path) and not.
     #[test]
     fn the_weight_gradient_is_the_same_whoever_runs_it() {
-        let s = ConvShape {
+        let same = ConvShape {
             batch: 2,
             channels_in: 8,
             channels_out: 6,
@@ -259,13 +340,19 @@ mod tests {
             padding: 1,
             stride: 1,
         };
-        let x = values(s.batch * s.channels_in * s.height * s.width, 7);
-        let grad = values(s.batch * s.channels_out * s.out_height() * s.out_width(), 8);
-        let outside = weight_grad(&x, &grad, &s);
-        for round in 0..6 {
-            let again =
-                if round % 2 == 0 { rayon::scope(|_| weight_grad(&x, &grad, &s)) } else { weight_grad(&x, &grad, &s) };
-            assert!(again.iter().zip(&outside).all(|(a, b)| a.to_bits() == b.to_bits()), "round {round}");
+        let stem = ConvShape { channels_in: 3, height: 160, width: 160, kernel: 7, padding: 3, stride: 2, ..same };
+        for s in [same, stem] {
+            let x = values(s.batch * s.channels_in * s.height * s.width, 7);
+            let grad = values(s.batch * s.channels_out * s.out_height() * s.out_width(), 8);
+            let outside = weight_grad(&x, &grad, &s);
+            for round in 0..6 {
+                let again = if round % 2 == 0 {
+                    rayon::scope(|_| weight_grad(&x, &grad, &s))
+                } else {
+                    weight_grad(&x, &grad, &s)
+                };
+                assert!(again.iter().zip(&outside).all(|(a, b)| a.to_bits() == b.to_bits()), "{s:?} round {round}");
+            }
         }
     }
 }

@@ -15,8 +15,8 @@ pub enum Activation {
 }
 
 /// Shapes of one convolution: `x` is `[batch, channels_in, height, width]`, the weight
-/// `[channels_out, channels_in, kernel, kernel]`, dilation 1, `padding` on every side. Only the
-/// forward takes a `stride` other than 1 (the gradients assert it).
+/// `[channels_out, channels_in, kernel, kernel]`, dilation 1, `padding` on every side, the same
+/// `stride` along both axes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct ConvShape {
     pub batch: usize,
@@ -63,16 +63,16 @@ impl ConvShape {
         self.out_height() * self.padded_width()
     }
 
-    /// The convolution that gives the input gradient: the output gradient convolved with the
-    /// weight transposed and flipped, padded by `kernel - 1 - padding`.
+    /// The convolution that gives the input gradient: the output gradient, spread to stride 1
+    /// (the size a stride-1 convolution's output would have), convolved with the weight
+    /// transposed and flipped, padded by `kernel - 1 - padding`.
     pub fn transposed(&self) -> ConvShape {
-        assert_eq!(self.stride, 1, "gradients of strided convolutions are Burn's");
         ConvShape {
             batch: self.batch,
             channels_in: self.channels_out,
             channels_out: self.channels_in,
-            height: self.out_height(),
-            width: self.out_width(),
+            height: self.height + 2 * self.padding + 1 - self.kernel,
+            width: self.width + 2 * self.padding + 1 - self.kernel,
             kernel: self.kernel,
             padding: self.kernel - 1 - self.padding,
             stride: 1,
