@@ -301,6 +301,8 @@ mod tests {
             Conv2dConfig::new([6, 4], [7, 7]).with_stride([2, 2]).with_padding(explicit(3)).init(device),
             // Stride 3 over a width it does not divide: the gather's phases of unequal use.
             Conv2dConfig::new([2, 3], [5, 5]).with_stride([3, 3]).with_padding(explicit(2)).init(device),
+            // A stride longer than the kernel, which skips inputs altogether.
+            Conv2dConfig::new([3, 4], [1, 1]).with_stride([2, 2]).init(device),
         ]
     }
 
@@ -308,7 +310,7 @@ mod tests {
     fn only_plain_layers_on_flex_take_the_matrix_path() {
         let device = crate::backend::default_device();
         let x = Tensor::<4>::zeros([1, 6, 8, 8], &device);
-        let [same, pointwise, valid, strided, _] = <[Conv2d; 5]>::try_from(layers(&device)).unwrap();
+        let [same, pointwise, valid, strided, _, _] = <[Conv2d; 6]>::try_from(layers(&device)).unwrap();
         assert_eq!(gemm_padding(&same, &x), Some((1, 1)));
         assert_eq!(gemm_padding(&pointwise, &x), Some((0, 1)));
         assert_eq!(gemm_padding(&valid, &x.clone().slice([0..1, 0..3, 0..8, 0..8])), Some((0, 1)));

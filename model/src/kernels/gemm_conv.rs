@@ -265,9 +265,9 @@ mod tests {
         ConvShape { batch: 1, channels_in: 2, channels_out: 3, height: 6, width: 5, kernel: 5, padding: 2, stride: 1 },
     ];
 
-    /// Strided shapes, like DenseNet's 7x7 stem, and a stride that leaves the last rows and
-    /// columns out.
-    const STRIDED: [ConvShape; 2] = [
+    /// Strided shapes, like DenseNet's 7x7 stem, a stride that leaves the last rows and
+    /// columns out, and one longer than the kernel.
+    const STRIDED: [ConvShape; 3] = [
         ConvShape {
             batch: 2,
             channels_in: 3,
@@ -279,6 +279,8 @@ mod tests {
             stride: 2,
         },
         ConvShape { batch: 1, channels_in: 2, channels_out: 3, height: 9, width: 9, kernel: 3, padding: 0, stride: 3 },
+        // A stride longer than the kernel: inputs that no output reads get no gradient.
+        ConvShape { batch: 2, channels_in: 3, channels_out: 2, height: 7, width: 6, kernel: 1, padding: 0, stride: 2 },
     ];
 
     #[test]
