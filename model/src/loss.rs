@@ -90,6 +90,9 @@ fn windows_inside(mask: Tensor<4>) -> Tensor<4> {
 /// rows) and `row` (along them): two 11-tap passes instead of one 121-tap window, the same
 /// values up to rounding and, forward and backward, a fraction of the work.
 fn separable(x: Tensor<4>, column: &[f32], row: &[f32]) -> Tensor<4> {
+    if let Some(blurred) = crate::kernels::separable_blur(&x, column, row) {
+        return blurred;
+    }
     let (device, dtype) = (x.device(), x.dtype());
     let kernel = |taps: &[f32], shape: [usize; 4]| {
         Tensor::<4>::from_data(TensorData::new(taps.to_vec(), shape), &device).cast(dtype)

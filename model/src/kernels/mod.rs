@@ -12,6 +12,7 @@
 //!   weights kept between calls in `weight_cache`), strided ones directly from the input dealt into phases (`direct`);
 //! - a dense block's eval-mode forward in one preallocated stack (`dense_block`);
 //! - eval-mode and training-mode batch norm + ReLU in one pass (`norm_relu`, `batch_norm_train`);
+//! - the loss's separable window, forward and backward (`blur`);
 //! - the stem's max pool and a transition's batch norm + ReLU + average pool (`pool`), and the
 //!   decoder's upsample + concatenation (`upsample`), written once or read row by row by the
 //!   convolution after it.
@@ -29,6 +30,9 @@ pub(crate) fn plain_flex(device: &burn::tensor::Device) -> bool {
 // `autodiff`, such as the `infer` binary's, compiles them but never calls them.
 #[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
 mod batch_norm_train;
+// The loss's separable window; its gradient serves training alone.
+#[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
+mod blur;
 #[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
 mod conv;
 // Matrix products through raw pointers into disjoint parts of one buffer.
@@ -56,6 +60,7 @@ mod winograd;
 mod winograd4;
 
 pub(crate) use batch_norm_train::norm_relu;
+pub(crate) use blur::separable as separable_blur;
 pub(crate) use conv::conv2d_act;
 pub(crate) use norm_relu::inference_affine;
 pub(crate) use pool::{max_pool2d, norm_relu_avg_pool2};
