@@ -34,6 +34,11 @@ fn split(taps: &FlexTensor) -> (&[f32], &[f32]) {
     taps.split_at(taps.len() / 2)
 }
 
+/// `dst += tap * src` over their common length: each pass's step, one tap of one row.
+fn add_scaled(dst: &mut [f32], src: &[f32], tap: f32) {
+    dst.iter_mut().zip(src).for_each(|(d, v)| *d += tap * v);
+}
+
 /// The forward on plain slices: `x` is `maps` planes of [h, w]; each plane's output is
 /// [h - k + 1, w - k + 1]. The row pass runs first, as Burn's pair of convolutions does.
 fn forward(x: &[f32], [h, w]: [usize; 2], column: &[f32], row: &[f32]) -> Vec<f32> {
@@ -44,12 +49,12 @@ fn forward(x: &[f32], [h, w]: [usize; 2], column: &[f32], row: &[f32]) -> Vec<f3
         let mut along = vec![0.0f32; h * wo];
         for (dst, src) in along.chunks_exact_mut(wo).zip(plane.chunks_exact(w)) {
             for (b, tap) in row.iter().enumerate() {
-                dst.iter_mut().zip(&src[b..]).for_each(|(d, v)| *d += tap * v);
+                add_scaled(dst, &src[b..], *tap);
             }
         }
         for (i, dst) in out.chunks_exact_mut(wo).enumerate() {
             for (a, tap) in column.iter().enumerate() {
-                dst.iter_mut().zip(&along[(i + a) * wo..][..wo]).for_each(|(d, v)| *d += tap * v);
+                add_scaled(dst, &along[(i + a) * wo..][..wo], *tap);
             }
         }
     });
@@ -66,12 +71,12 @@ fn backward(grad: &[f32], [h, w]: [usize; 2], column: &[f32], row: &[f32]) -> Ve
         let mut along = vec![0.0f32; h * wo];
         for (i, src) in g.chunks_exact(wo).enumerate() {
             for (a, tap) in column.iter().enumerate() {
-                along[(i + a) * wo..][..wo].iter_mut().zip(src).for_each(|(d, v)| *d += tap * v);
+                add_scaled(&mut along[(i + a) * wo..][..wo], src, *tap);
             }
         }
         for (dst, src) in dx.chunks_exact_mut(w).zip(along.chunks_exact(wo)) {
             for (b, tap) in row.iter().enumerate() {
-                dst[b..][..wo].iter_mut().zip(src).for_each(|(d, v)| *d += tap * v);
+                add_scaled(&mut dst[b..][..wo], src, *tap);
             }
         }
     });
