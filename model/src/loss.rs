@@ -90,9 +90,12 @@ fn windows_inside(mask: Tensor<4>) -> Tensor<4> {
 /// rows) and `row` (along them): two 11-tap passes instead of one 121-tap window, the same
 /// values up to rounding and, forward and backward, a fraction of the work.
 fn separable(x: Tensor<4>, column: &[f32], row: &[f32]) -> Tensor<4> {
-    if let Some(blurred) = crate::kernels::separable_blur(&x, column, row) {
-        return blurred;
-    }
+    crate::kernels::separable_blur(&x, column, row).unwrap_or_else(|| separable_by_convs(x, column, row))
+}
+
+/// `separable` through Burn's two one-channel convolutions: every backend and dtype the kernel
+/// does not take, and the kernel's reference in its tests.
+pub(crate) fn separable_by_convs(x: Tensor<4>, column: &[f32], row: &[f32]) -> Tensor<4> {
     let (device, dtype) = (x.device(), x.dtype());
     let kernel = |taps: &[f32], shape: [usize; 4]| {
         Tensor::<4>::from_data(TensorData::new(taps.to_vec(), shape), &device).cast(dtype)

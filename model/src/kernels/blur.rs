@@ -165,8 +165,6 @@ pub(crate) fn separable(x: &Tensor<4>, column: &[f32], row: &[f32]) -> Option<Te
 
 #[cfg(test)]
 mod tests {
-    use burn::tensor::module::conv2d;
-    use burn::tensor::ops::ConvOptions;
     use burn::tensor::{Distribution, Tolerance};
 
     use super::*;
@@ -221,14 +219,9 @@ mod tests {
         assert!((left - right).abs() < 1e-5 * left.abs().max(1.0), "{left} against {right}");
     }
 
-    /// Burn's two one-channel convolutions, the path everywhere else.
+    /// Burn's two one-channel convolutions: the loss's path everywhere else.
     fn burns(x: Tensor<4>) -> Tensor<4> {
-        let device = x.device();
-        let kernel =
-            |taps: &[f32], shape: [usize; 4]| Tensor::<4>::from_data(TensorData::new(taps.to_vec(), shape), &device);
-        let options = || ConvOptions::new([1, 1], [0, 0], [1, 1], 1);
-        let along = conv2d(x, kernel(&ROW, [1, 1, 1, 3]), None, options());
-        conv2d(along, kernel(&COLUMN, [1, 1, 3, 1]), None, options())
+        crate::loss::separable_by_convs(x, &COLUMN, &ROW)
     }
 
     #[test]
