@@ -29,7 +29,7 @@ use crate::unit::SensorUnit;
 
 #[allow(unsafe_code)] // the AVX2 noise and finishing pass
 mod noise;
-mod optics;
+pub(crate) mod optics;
 #[allow(unsafe_code)] // AVX2 shading lanes
 mod shade;
 mod subgrid;

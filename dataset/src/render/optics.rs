@@ -9,13 +9,13 @@
 /// sample) and normalised, applied separably with zero padding (so it is linear: blurring the
 /// reference once and each frame's change to it gives the blurred frame).
 #[derive(Clone, Debug)]
-pub(super) struct LensBlur {
+pub(crate) struct LensBlur {
     weights: Vec<f32>,
 }
 
 impl LensBlur {
     /// `None` for a sharp lens.
-    pub(super) fn new(sigma_steps: f64) -> Option<Self> {
+    pub(crate) fn new(sigma_steps: f64) -> Option<Self> {
         if !(sigma_steps.is_finite() && sigma_steps > 0.05) {
             return None;
         }
@@ -30,7 +30,7 @@ impl LensBlur {
     }
 
     /// Blurs the whole RGB `image` of `width` samples a row.
-    pub(super) fn whole(&self, image: &[[f32; 3]], width: usize) -> Vec<[f32; 3]> {
+    pub(crate) fn whole(&self, image: &[[f32; 3]], width: usize) -> Vec<[f32; 3]> {
         let height = image.len() / width;
         self.rows(image, 0, width, height).1
     }
