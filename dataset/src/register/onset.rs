@@ -167,38 +167,16 @@ fn first_visible(frames: &[RgbImage], maps: &[Vec<f32>], z_mm: &[f32], n: usize)
     // The growth law is the gel's and the camera's: the exponent that explains the frames
     // from just before the onset to the template best is chosen, and the onset is where that
     // curve starts.
-    let span = first.saturating_sub(2)..t;
-    let mut best: Option<(f64, f64, f64)> = None;
-    for q in GROWTH_EXPONENTS {
-        let fit: Vec<(f64, f64)> =
-            span.clone().filter(|&j| c[j] > 3.0 * c_sd).map(|j| (z_mm[j] as f64, c[j].powf(1.0 / q))).collect();
-        let Some((alpha, beta, var_a, var_b, cov)) = line_fit(&fit) else { continue };
-        if beta <= 0.0 {
-            continue;
-        }
-        let z0 = -alpha / beta;
-        let sse: f64 = span.clone().map(|j| (c[j] - (beta * (z_mm[j] as f64 - z0)).max(0.0).powf(q)).powi(2)).sum();
-        let var_z = (var_a + z0 * z0 * var_b + 2.0 * z0 * cov) / (beta * beta);
-        if best.is_none_or(|b| sse < b.0) {
-            best = Some((sse, z0, var_z));
-        }
-    }
-    let (_, z0, var_z) = best.ok_or("the change does not grow along the sweep")?;
+    let (z0, var_z) = growth_law(&c, z_mm, first.saturating_sub(2)..t, 3.0 * c_sd)
+        .ok_or("the change does not grow along the sweep")?;
     // A sweep that starts touched has no untouched frames: its first frames' change already
     // grows along the template, a good part as fast as after the onset.
-    {
-        let projection = &c;
-        let start: Vec<(f64, f64)> = (0..BASELINE_FRAMES).map(|j| (z_mm[j] as f64, projection[j])).collect();
-        let after: Vec<(f64, f64)> = (first..t).map(|j| (z_mm[j] as f64, projection[j])).collect();
-        if let (Some(early), Some(late)) = (line_fit(&start), line_fit(&after))
-            && early.1 > TOUCHED_START_SLOPE * late.1
-        {
-            return Err(format!(
-                "the image already changes along the sweep's first {BASELINE_FRAMES} frames ({:.0} % of the rate past \
-                 its onset): the sweep starts touched",
-                100.0 * early.1 / late.1
-            ));
-        }
+    if let Some(share) = touched_start(&c, z_mm, 0..BASELINE_FRAMES, first..t) {
+        return Err(format!(
+            "the image already changes along the sweep's first {BASELINE_FRAMES} frames ({:.0} % of the rate past its \
+             onset): the sweep starts touched",
+            100.0 * share
+        ));
     }
     // Not before the last frame that looked untouched less one step.
     let floor = z_mm[first.saturating_sub(2)] as f64;
@@ -284,34 +262,11 @@ fn growth_onset(frames: &[RgbImage], z_mm: &[f32], n: usize, mask: &[bool]) -> O
     let hi = (first..len).find(|&j| c[j] - level > GROWTH_FIT_TOP * top).unwrap_or(len - 1);
     // A sweep that starts touched: its untouched groups already grow along the template, a good
     // part as fast as past the onset.
-    let early: Vec<(f64, f64)> = (k..3 * k).map(|j| (z_mm[j] as f64, c[j])).collect();
-    let late: Vec<(f64, f64)> = (first..=hi.max(first + 2).min(len - 1)).map(|j| (z_mm[j] as f64, c[j])).collect();
-    if let (Some(early), Some(late)) = (line_fit(&early), line_fit(&late))
-        && early.1 > TOUCHED_START_SLOPE * late.1
-    {
+    if touched_start(&c, z_mm, k..3 * k, first..hi.max(first + 2).min(len - 1) + 1).is_some() {
         return None;
     }
-    let span = first.saturating_sub(3).max(2 * k)..hi + 1;
-    let mut best: Option<(f64, f64, f64)> = None;
-    for q in GROWTH_EXPONENTS {
-        let fit: Vec<(f64, f64)> = span
-            .clone()
-            .filter(|&j| c[j] - level > 2.0 * noise)
-            .map(|j| (z_mm[j] as f64, (c[j] - level).powf(1.0 / q)))
-            .collect();
-        let Some((alpha, beta, var_a, var_b, cov)) = line_fit(&fit) else { continue };
-        if beta <= 0.0 {
-            continue;
-        }
-        let z0 = -alpha / beta;
-        let sse: f64 =
-            span.clone().map(|j| (c[j] - level - (beta * (z_mm[j] as f64 - z0)).max(0.0).powf(q)).powi(2)).sum();
-        let var_z = (var_a + z0 * z0 * var_b + 2.0 * z0 * cov) / (beta * beta);
-        if best.is_none_or(|b| sse < b.0) {
-            best = Some((sse, z0, var_z));
-        }
-    }
-    let (_, z0, var_z) = best?;
+    let above: Vec<f64> = c.iter().map(|v| v - level).collect();
+    let (z0, var_z) = growth_law(&above, z_mm, first.saturating_sub(3).max(2 * k)..hi + 1, 2.0 * noise)?;
     let step = (z_mm[len - 1] - z_mm[0]) as f64 / (len - 1) as f64;
     let z = z0.clamp(z_mm[first] as f64 - GROWTH_BACK_STEPS * step, z_mm[first] as f64);
     // The contact is placed two frames past the first clear one, where the frame shows it: the
@@ -325,6 +280,36 @@ fn growth_onset(frames: &[RgbImage], z_mm: &[f32], n: usize, mask: &[bool]) -> O
     let reach = z_mm[first] as f64 - z;
     let sd_mm = (var_z.max(0.0) + (0.5 * reach).powi(2)).sqrt().max(MIN_ONSET_SD_MM);
     Some(Onset { z_mm: z, sd_mm, centroid_px, probe_mm: z_mm[j] as f64 - z })
+}
+
+/// The growth law that explains a projection `c` (0 untouched) over the frames `span` best: for
+/// each exponent, the frames above `floor` fitted as a line in `c^(1/q)`, the one of least
+/// squared misfit over the span chosen. Its onset (mm of logged travel) and the onset's variance.
+fn growth_law(c: &[f64], z_mm: &[f32], span: std::ops::Range<usize>, floor: f64) -> Option<(f64, f64)> {
+    let mut best: Option<(f64, f64, f64)> = None;
+    for q in GROWTH_EXPONENTS {
+        let fit: Vec<(f64, f64)> =
+            span.clone().filter(|&j| c[j] > floor).map(|j| (z_mm[j] as f64, c[j].powf(1.0 / q))).collect();
+        let Some((alpha, beta, var_a, var_b, cov)) = line_fit(&fit) else { continue };
+        if beta <= 0.0 {
+            continue;
+        }
+        let z0 = -alpha / beta;
+        let sse: f64 = span.clone().map(|j| (c[j] - (beta * (z_mm[j] as f64 - z0)).max(0.0).powf(q)).powi(2)).sum();
+        let var_z = (var_a + z0 * z0 * var_b + 2.0 * z0 * cov) / (beta * beta);
+        if best.is_none_or(|b| sse < b.0) {
+            best = Some((sse, z0, var_z));
+        }
+    }
+    best.map(|(_, z0, var_z)| (z0, var_z))
+}
+
+/// Whether a projection `c` already grows over the frames `early` (meant to be untouched) by
+/// more than [`TOUCHED_START_SLOPE`] of its rate over `late` (past the onset): that share.
+fn touched_start(c: &[f64], z_mm: &[f32], early: std::ops::Range<usize>, late: std::ops::Range<usize>) -> Option<f64> {
+    let points = |r: std::ops::Range<usize>| -> Vec<(f64, f64)> { r.map(|j| (z_mm[j] as f64, c[j])).collect() };
+    let (early, late) = (line_fit(&points(early))?, line_fit(&points(late))?);
+    (early.1 > TOUCHED_START_SLOPE * late.1).then(|| early.1 / late.1)
 }
 
 /// The weighted centroid (px) of the blob around the largest of `weight` on an `n` x `n` grid:
