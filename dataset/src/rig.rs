@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use sensor::{CONTACT_THRESHOLD_MM, DepthMap};
 
 use formats::SplitMix64;
-use formats::dataset::{RigPose, Split};
+use formats::dataset::{RigPose, SampleRecord as Sample, Split};
 use glam::{Affine3A, Vec3};
 use serde::{Deserialize, Serialize};
 
@@ -83,6 +83,35 @@ impl RigOffsets {
 /// simulated session's `.simulation/rig.json`): the mean absolute difference (mm) over the
 /// pixels either calls contact, and their count. What registration is measured by.
 pub fn label_error_mm(session: &Path, labelled: &Path, kit: &Kit, truth: &RigOffsets) -> Result<(f64, usize)> {
+    depth_error_mm(session, labelled, kit, truth, |sample, _, _| {
+        let path = labelled.join(&sample.depth);
+        Ok(DepthMap::decode_png_um(&path, &std::fs::read(&path).with_context(|| path.display().to_string())?)?)
+    })
+}
+
+/// As [`label_error_mm`], for the labels that `offsets` would give (cast here, not read): what
+/// each of a registration's offsets costs the labels, the others set to the truth.
+pub fn offsets_error_mm(
+    session: &Path,
+    labelled: &Path,
+    kit: &Kit,
+    truth: &RigOffsets,
+    offsets: &RigOffsets,
+) -> Result<(f64, usize)> {
+    depth_error_mm(session, labelled, kit, truth, |sample, logged, cast| {
+        cast(offsets.true_pose(sample.split, sample.trial, logged), offsets.mount())
+    })
+}
+
+/// The mean absolute difference between the true depth of each of `labelled`'s samples and the
+/// depth `label` gives it (from the sample, its logged pose, and a caster of the true sensor).
+fn depth_error_mm(
+    session: &Path,
+    labelled: &Path,
+    kit: &Kit,
+    truth: &RigOffsets,
+    label: impl Fn(&Sample, RigPose, &dyn Fn(RigPose, Affine3A) -> Result<DepthMap>) -> Result<DepthMap> + Sync,
+) -> Result<(f64, usize)> {
     let manifest = formats::dataset::Manifest::load(labelled)?;
     let log = formats::session::CaptureLog::read(session)?;
     let by_line: BTreeMap<usize, RigPose> = log.rows.iter().map(|r| (r.line, r.pose)).collect();
@@ -98,13 +127,12 @@ pub fn label_error_mm(session: &Path, labelled: &Path, kit: &Kit, truth: &RigOff
             let row = sample.capture.as_ref().with_context(|| format!("sample {} has no capture row", sample.id))?;
             let logged =
                 *by_line.get(&row.line).with_context(|| format!("{}: no line {}", log.path.display(), row.line))?;
-            let pose = truth.true_pose(sample.split, sample.trial, logged);
-            let scene = build_scene_in(kit, trial, pose, truth.mount())?;
-            let (true_depth, _) =
-                RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On).depth_map(sensor, &rays);
-            let path = labelled.join(&sample.depth);
-            let label =
-                DepthMap::decode_png_um(&path, &std::fs::read(&path).with_context(|| path.display().to_string())?)?;
+            let cast = |pose: RigPose, mount: Affine3A| -> Result<DepthMap> {
+                let scene = build_scene_in(kit, trial, pose, mount)?;
+                Ok(RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On).depth_map(sensor, &rays).0)
+            };
+            let true_depth = cast(truth.true_pose(sample.split, sample.trial, logged), truth.mount())?;
+            let label = label(sample, logged, &cast)?;
             let (mut sum, mut pixels) = (0f64, 0usize);
             for (t, l) in true_depth.depth_mm.iter().zip(&label.depth_mm) {
                 if *t > CONTACT_THRESHOLD_MM || *l > CONTACT_THRESHOLD_MM {

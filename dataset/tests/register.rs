@@ -6,7 +6,7 @@ use std::path::Path;
 
 use dataset::label::LabelFile;
 use dataset::register::Registration;
-use dataset::rig::{RigOffsets, label_error_mm};
+use dataset::rig::{RigOffsets, label_error_mm, offsets_error_mm};
 
 use crate::common::{dataset, ok, refused};
 
@@ -91,6 +91,11 @@ fn register_session(dir: &Path, kit: &str, sweeps: u32) -> Registered {
     let registration = file.registration.expect("label.json records the offsets applied");
     let (logged_error_mm, _) = label_error_mm(&session, &logged, &kit, &truth).unwrap();
     let (registered_error_mm, _) = label_error_mm(&session, &registered, &kit, &truth).unwrap();
+    // The labels an offset set gives, cast rather than read: the truth's are the truth, and the
+    // registration's are its labels (to the labels' 1 um steps).
+    assert_eq!(offsets_error_mm(&session, &registered, &kit, &truth, &truth).unwrap().0, 0.0);
+    let cast = offsets_error_mm(&session, &registered, &kit, &truth, &registration.offsets).unwrap().0;
+    assert!((cast - registered_error_mm).abs() < 1e-3, "cast {cast} mm, labelled {registered_error_mm} mm");
     eprintln!(
         "recovered {:?}\nsd {:?}\nleft out {:?}\nlabel depth error against the truth: {registered_error_mm:.4} mm \
          registered, {logged_error_mm:.4} mm as logged",

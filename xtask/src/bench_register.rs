@@ -3,14 +3,15 @@
 //! +-0.5 mm, tilts +-1 degree, B +-2 degrees), filmed by the project's renderer and by the
 //! independent image model (`gelcam`), each labelled with the unit's true sensor as `dataset
 //! label` labels it and with `--register`: the offsets recovered against the truth, and both
-//! labellings' depth against the depth the frames were truly pressed to.
+//! labellings' depth against the depth the frames were truly pressed to, and what each kind of
+//! offset costs those labels alone (its registered value, the others at the truth).
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use dataset::label::{Labeller, OnBadRow};
-use dataset::rig::{RigOffsets, label_error_mm};
+use dataset::rig::{RigOffsets, label_error_mm, offsets_error_mm};
 use dataset::session::{RendererCamera, SessionCamera, SessionWriter, Sweep};
 use dataset::{Kit, SensorUnit};
 use formats::dataset::GeneratorParams;
@@ -118,6 +119,27 @@ pub fn run(args: Args) -> Result<()> {
                 truth.y_mm,
                 if met { "met" } else { "NOT met" }
             );
+            // What each kind of offset costs the labels: the registration's value of that kind
+            // alone, the rest at the truth.
+            let mut costs = Vec::new();
+            for (kind, pick) in [
+                (
+                    "z zeros",
+                    (|t: &mut RigOffsets, o: &RigOffsets| t.z_zero_by_trial_mm = o.z_zero_by_trial_mm.clone())
+                        as fn(&mut RigOffsets, &RigOffsets),
+                ),
+                ("x/y", |t, o| (t.x_mm, t.y_mm) = (o.x_mm, o.y_mm)),
+                ("tilts", |t, o| (t.tilt_x_deg, t.tilt_y_deg) = (o.tilt_x_deg, o.tilt_y_deg)),
+                ("B", |t, o| t.b_zero_deg = o.b_zero_deg),
+            ] {
+                let mut alone = truth.clone();
+                pick(&mut alone, o);
+                costs.push(format!(
+                    "{kind} {:.4}",
+                    offsets_error_mm(&session, &dir.join("registered"), &kit, &truth, &alone)?.0
+                ));
+            }
+            println!("        label error from each kind alone (mm): {}", costs.join(", "));
             if unswept > 0 {
                 println!("        {unswept} trials of the log had no usable sweep");
             }

@@ -14,7 +14,10 @@
 //! back in its uncertainty, and the contact is placed on the first frame that shows it. The ray cast says both for any candidate offsets (the travel at
 //! which an indenter first meets the useful disk, and its contact's centroid), and, linearised
 //! about the log and then about the first answer, the sweeps' onsets and centroids give the
-//! offsets by weighted least squares. Sweeps that start touched, never change, fit no growth
+//! offsets by weighted least squares. About the answer, a sweep whose cast contact jumps within
+//! a step of the offsets (another part or blob taking the lead: the slopes miss the centroid a
+//! step back by more than its deviation) has slopes that mean nothing: its onset stays in the
+//! fit, its centroid does not, though it is still judged against the cast's. Sweeps that start touched, never change, fit no growth
 //! law, that the ray cast cannot follow (no first touch near the logged one under candidate
 //! offsets), or that disagree with what the others predict (beyond five standard deviations of
 //! that prediction, the worst first, up to a quarter) are named and left out.
@@ -134,6 +137,8 @@ fn seen(mask: &[bool]) -> Seen<'_> {
 struct Search {
     bracket: (f32, f32),
     probe_mm: f64,
+    /// Whether a linearisation checks that its slopes hold.
+    judge: bool,
 }
 
 /// The ray cast's account of a sweep under candidate offsets: its first touch (mm of logged
@@ -146,7 +151,7 @@ fn predict(
     sensor: &Sensor,
     rays: &RayBundle,
     mask: &[bool],
-    Search { bracket, probe_mm }: Search,
+    Search { bracket, probe_mm, .. }: Search,
 ) -> Result<(f64, [f64; 2])> {
     let touch = first_touch_in(kit, sweep.trial, sweep.pose, rig, sensor, rays, bracket, seen(mask))?;
     let pose = RigPose {
@@ -183,9 +188,13 @@ struct Linearised {
     centroid_px: [f64; 2],
     d_touch: [f64; 5],
     d_centroid: [[f64; 2]; 5],
+    /// How far (px) the centroid one step back along every offset is from where the slopes
+    /// put it: its second difference where the cast is smooth, a jump where it is not.
+    bend_px: f64,
 }
 
-/// The cast's touch and centroid for a sweep at offsets `theta`, and their derivatives.
+/// The cast's touch and centroid for a sweep at offsets `theta`, and their derivatives (and,
+/// where `search.judge`, whether the centroid's slopes hold a step away).
 fn linearise(
     kit: &Kit,
     g: &SweepRows,
@@ -195,16 +204,28 @@ fn linearise(
     mask: &[bool],
     search: Search,
 ) -> Result<Linearised> {
-    let (touch_mm, centroid_px) = predict(kit, g, &offsets_of(theta), sensor, rays, mask, search)?;
+    let at = |theta: &[f64; 5]| predict(kit, g, &offsets_of(theta), sensor, rays, mask, search);
+    let (touch_mm, centroid_px) = at(theta)?;
     let (mut d_touch, mut d_centroid) = ([0.0; 5], [[0.0; 2]; 5]);
     for (k, &step) in STEPS.iter().enumerate() {
         let mut moved = *theta;
         moved[k] += step as f64;
-        let (t, c) = predict(kit, g, &offsets_of(&moved), sensor, rays, mask, search)?;
+        let (t, c) = at(&moved)?;
         d_touch[k] = (t - touch_mm) / step as f64;
         d_centroid[k] = [(c[0] - centroid_px[0]) / step as f64, (c[1] - centroid_px[1]) / step as f64];
     }
-    Ok(Linearised { touch_mm, centroid_px, d_touch, d_centroid })
+    // One step back along every offset at once, to see whether the slopes hold there (a cast
+    // that cannot follow the sweep there does not).
+    let bend_px = if search.judge {
+        let back: [f64; 5] = std::array::from_fn(|k| theta[k] - STEPS[k] as f64);
+        at(&back).map_or(f64::INFINITY, |(_, c)| {
+            let slope = |a: usize| (0..5).map(|k| d_centroid[k][a] * STEPS[k] as f64).sum::<f64>();
+            (0..2).map(|a| (c[a] - (centroid_px[a] - slope(a))).abs()).fold(0.0, f64::max)
+        })
+    } else {
+        0.0
+    };
+    Ok(Linearised { touch_mm, centroid_px, d_touch, d_centroid, bend_px })
 }
 
 /// Linearisations: the second about the first's estimate.
@@ -269,13 +290,16 @@ pub fn register(
     let mut kept = Vec::new();
     let mut disagree = Vec::new();
     let mut uncast = Vec::new();
-    for _ in 0..GAUSS_NEWTON_PASSES {
+    for pass in 0..GAUSS_NEWTON_PASSES {
         // Every measured sweep, linearised about the current estimate: one that disagreed about
         // the log's offsets may agree about better ones (which indenter touches first can change).
         let lin: Vec<Result<Linearised>> = cast
             .par_iter()
             .map(|(g, o, t)| {
-                let search = Search { bracket: (t - 1.5, t + 1.5), probe_mm: o.probe_mm };
+                // About the log, far from the truth, a contact may jump where it would not near
+                // it, and a short session needs every slope to get near: only the passes about
+                // an estimate judge the slopes.
+                let search = Search { bracket: (t - 1.5, t + 1.5), probe_mm: o.probe_mm, judge: pass > 0 };
                 linearise(kit, g, &theta, sensor, &rays, &mask, search)
             })
             .collect();
@@ -369,7 +393,7 @@ fn solve(used: &[(&SweepRows, Onset)], lin: &[&Linearised], theta0: &[f64; 5]) -
     // Unknowns: the offsets' change from `theta0`, and the zeros.
     for (i, ((g, onset), m)) in used.iter().zip(lin).enumerate() {
         let t = 5 + trials[&trial_key(g.trial.split, g.trial.number)];
-        for (r, (coefficients, zero, rhs)) in equations_of(onset, m).into_iter().enumerate() {
+        for (r, (coefficients, zero, rhs)) in equations_of(onset, m, true).into_iter().enumerate() {
             for (k, c) in coefficients.into_iter().enumerate() {
                 a[(3 * i + r, k)] = c;
             }
@@ -404,11 +428,18 @@ fn solve(used: &[(&SweepRows, Onset)], lin: &[&Linearised], theta0: &[f64; 5]) -
 /// offsets' change from the linearisation's, the one on its trial's z zero, and the right side.
 /// Onset: the logged first touch is the cast's touch under the offsets less the trial's zero;
 /// centroids: the image's contact where the cast puts it.
-fn equations_of(onset: &Onset, m: &Linearised) -> [([f64; 5], f64, f64); 3] {
+fn equations_of(onset: &Onset, m: &Linearised, fit: bool) -> [([f64; 5], f64, f64); 3] {
     let w = 1.0 / onset.sd_mm;
+    // A contact whose place jumps under a step of the offsets (another part or blob taking the
+    // lead) has no slope to fit: its centroid adds nothing to the fit, its onset does. Judged
+    // (`fit` false), its centroid must still sit where the cast puts it now.
+    let smooth = m.bend_px <= CENTROID_SD_PX;
     let centroid = |axis: usize| {
-        let coefficients = std::array::from_fn(|k| m.d_centroid[k][axis] / CENTROID_SD_PX);
-        (coefficients, 0.0, (onset.centroid_px[axis] - m.centroid_px[axis]) / CENTROID_SD_PX)
+        let rhs = (onset.centroid_px[axis] - m.centroid_px[axis]) / CENTROID_SD_PX;
+        if !smooth {
+            return ([0.0; 5], 0.0, if fit { 0.0 } else { rhs });
+        }
+        (std::array::from_fn(|k| m.d_centroid[k][axis] / CENTROID_SD_PX), 0.0, rhs)
     };
     [(m.d_touch.map(|d| w * d), -w, w * (onset.z_mm - m.touch_mm)), centroid(0), centroid(1)]
 }
@@ -420,7 +451,7 @@ fn equations_of(onset: &Onset, m: &Linearised) -> [([f64; 5], f64, f64); 3] {
 /// trial's zero was solved from other sweeps (otherwise that zero would take it up whole).
 fn misfit(g: &SweepRows, onset: &Onset, m: &Linearised, solution: &Solution) -> f64 {
     let zero = solution.trials.get(&trial_key(g.trial.split, g.trial.number));
-    let [onset_row, across, along] = equations_of(onset, m);
+    let [onset_row, across, along] = equations_of(onset, m, false);
     let miss = |(coefficients, c_zero, rhs): ([f64; 5], f64, f64), zero: Option<usize>| {
         let mut row = DVector::<f64>::zeros(solution.unknowns.len());
         row.rows_mut(0, 5).copy_from_slice(&coefficients);
@@ -434,5 +465,38 @@ fn misfit(g: &SweepRows, onset: &Onset, m: &Linearised, solution: &Solution) -> 
     match zero {
         Some(&t) => lateral.max(miss(onset_row, Some(t))),
         None => lateral,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sweep's equations: the onset always; the centroids in the fit only where the cast's
+    /// contact moves smoothly, and judged against where the cast puts it either way.
+    #[test]
+    fn a_contact_that_jumps_under_the_offsets_is_judged_but_not_fitted() {
+        let onset = Onset { z_mm: -3.0, sd_mm: 0.04, centroid_px: [110.0, 95.0], probe_mm: 0.1 };
+        let mut m = Linearised {
+            touch_mm: -3.1,
+            centroid_px: [100.0, 100.0],
+            d_touch: [0.5, -0.2, 0.01, 0.0, 0.0],
+            d_centroid: [[8.0, 1.0], [-1.0, 7.0], [0.0, -2.8], [2.8, 0.0], [1.0, -2.0]],
+            bend_px: 0.3,
+        };
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        for fit in [true, false] {
+            let [z, across, along] = equations_of(&onset, &m, fit);
+            assert!(close(z.1, -25.0) && close(z.2, 25.0 * 0.1) && close(z.0[0], 12.5));
+            assert!(close(across.0[0], 8.0 / CENTROID_SD_PX) && close(across.2, 10.0 / CENTROID_SD_PX));
+            assert!(close(along.0[3], 0.0) && close(along.2, -5.0 / CENTROID_SD_PX));
+        }
+        m.bend_px = 2.0 * CENTROID_SD_PX;
+        let [z, across, along] = equations_of(&onset, &m, true);
+        assert!(close(z.0[0], 12.5) && close(z.2, 2.5), "the onset stays in the fit");
+        assert!(across.0.iter().chain(&along.0).all(|&c| c == 0.0) && across.2 == 0.0 && along.2 == 0.0);
+        let [_, across, along] = equations_of(&onset, &m, false);
+        assert!(across.0.iter().chain(&along.0).all(|&c| c == 0.0));
+        assert!(close(across.2, 10.0 / CENTROID_SD_PX) && close(along.2, -5.0 / CENTROID_SD_PX), "still judged");
     }
 }
