@@ -1,26 +1,27 @@
-//! Registration from the frames (`dataset label --register`): the rig's offsets (each trial's
-//! z zero, the sensor's x, y and tilts in its mount, B's zero; [`RigOffsets`]) estimated from
-//! the session itself, without a network, so that labels do not carry a rig's zeros set by eye.
+//! Registration from the frames (`dataset label --register`): the rig's offsets (each trial's z
+//! zero, the sensor's x, y and tilts in its mount, B's zero; [`RigOffsets`]) estimated from the
+//! session itself, without a network, so that labels do not carry a rig's zeros set by eye.
 //!
 //! It reads the log's z sweeps: rows of one trial, tilts and B at several z. In each, the first
-//! frame whose local change (a 9x9 box's, against the reference) rises out of the noise finds
-//! the touch; each frame's change against the sweep's own untouched frames, projected on a
-//! frame 0.25 mm further, is then fitted as a power (1 to 2, the best) of the travel past an
-//! onset, which is the logged z of first touch; where the change sits a little past it says
-//! where the skin was touched. A camera that shows a touch's first tenths of a millimetre only
-//! faintly (a soft gel's smoothing, JPEG blocks) shows that first frame late: where the change's
-//! growth, projected through a spatial matched filter on the sweep's deepest change, extrapolates
-//! back to an onset clearly earlier, that onset is used instead, with the distance it reaches
-//! back in its uncertainty, and the contact is placed on the first frame that shows it. The ray cast says both for any candidate offsets (the travel at
-//! which an indenter first meets the useful disk, and its contact's centroid), and, linearised
-//! about the log and then about the first answer, the sweeps' onsets and centroids give the
-//! offsets by weighted least squares. About the answer, a sweep whose cast contact jumps within
-//! a step of the offsets (another part or blob taking the lead: the slopes miss the centroid a
-//! step back by more than its deviation) has slopes that mean nothing: its onset stays in the
-//! fit, its centroid does not, though it is still judged against the cast's. Sweeps that start touched, never change, fit no growth
-//! law, that the ray cast cannot follow (no first touch near the logged one under candidate
-//! offsets), or that disagree with what the others predict (beyond five standard deviations of
-//! that prediction, the worst first, up to a quarter) are named and left out.
+//! frame whose local change (a 9x9 box's, against the reference) rises out of the noise finds the
+//! touch; each frame's change against the sweep's own untouched frames, projected on a frame 0.25
+//! mm further, is then fitted as a power (1 to 2, the best) of the travel past an onset, which is
+//! the logged z of first touch; where the change sits a little past it says where the skin was
+//! touched. A camera that shows a touch's first tenths of a millimetre only faintly (a soft gel's
+//! smoothing, JPEG blocks) shows that first frame late: where the change's growth, projected
+//! through a spatial matched filter on the sweep's deepest change, extrapolates back to an onset
+//! clearly earlier, that onset is used instead, with the distance it reaches back in its
+//! uncertainty, and the contact is placed on the first frame that shows it. The ray cast says both
+//! for any candidate offsets (the travel at which an indenter first meets the useful disk, and its
+//! contact's centroid), and, linearised about the log and then about the first answer, the sweeps'
+//! onsets and centroids give the offsets by weighted least squares. About the answer, a sweep whose
+//! cast contact jumps within a step of the offsets (another part or blob taking the lead: the
+//! slopes miss the centroid a step back by more than its deviation) has slopes that mean nothing:
+//! its onset stays in the fit, its centroid does not, though it is still judged against the cast's.
+//! Sweeps that start touched, never change, fit no growth law, that the ray cast cannot follow (no
+//! first touch near the logged one under candidate offsets), or that disagree with what the others
+//! predict (beyond five standard deviations of that prediction, the worst first, up to a quarter)
+//! are named and left out.
 //!
 //! Measured against the truth on the renderer's sweeps of the authors' kit (`cargo xtask bench
 //! register`, BENCHMARKS.md): onsets 0.003 mm late on average, scattering by 0.02 mm. On the
@@ -409,7 +410,9 @@ fn solve(used: &[(&SweepRows, Onset)], lin: &[&Linearised], theta0: &[f64; 5]) -
     let chol = normal.cholesky()?;
     let u = chol.solve(&(a.transpose() * &b));
     let residual = &a * &u - &b;
-    let dof = (equations as f64 - unknowns as f64).max(1.0);
+    // Rows left empty (centroids not fitted) are no equations.
+    let empty = (0..equations).filter(|&r| b[r] == 0.0 && a.row(r).iter().all(|&c| c == 0.0)).count();
+    let dof = (equations as f64 - empty as f64 - unknowns as f64).max(1.0);
     let scale = (residual.norm_squared() / dof).max(1.0);
     let cov = chol.inverse() * scale;
     let sd_of = |k: usize| cov[(k, k)].max(0.0).sqrt();
