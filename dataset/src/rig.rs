@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use sensor::{CONTACT_THRESHOLD_MM, DepthMap};
 
 use formats::SplitMix64;
-use formats::dataset::{RigPose, SampleRecord as Sample, Split};
+use formats::dataset::{RigPose, Split};
 use glam::{Affine3A, Vec3};
 use serde::{Deserialize, Serialize};
 
@@ -78,73 +78,82 @@ impl RigOffsets {
     }
 }
 
+/// Labels to measure against the truth: a `dataset label` folder's depth maps, or the depth
+/// maps an offset set casts (what those offsets would label).
+#[derive(Clone, Copy)]
+pub enum Labels<'a> {
+    Written(&'a Path),
+    Cast(&'a RigOffsets),
+}
+
 /// How far a labelled session's depth maps (`labelled`, a `dataset label` folder of `session`)
 /// are from the depth its frames were truly pressed to, the rig's errors being `truth` (a
 /// simulated session's `.simulation/rig.json`): the mean absolute difference (mm) over the
 /// pixels either calls contact, and their count. What registration is measured by.
 pub fn label_error_mm(session: &Path, labelled: &Path, kit: &Kit, truth: &RigOffsets) -> Result<(f64, usize)> {
-    depth_error_mm(session, labelled, kit, truth, |sample, _, _| {
-        let path = labelled.join(&sample.depth);
-        Ok(DepthMap::decode_png_um(&path, &std::fs::read(&path).with_context(|| path.display().to_string())?)?)
-    })
+    Ok(label_errors_mm(session, labelled, kit, truth, &[Labels::Written(labelled)])?[0])
 }
 
-/// As [`label_error_mm`], for the labels that `offsets` would give (cast here, not read): what
-/// each of a registration's offsets costs the labels, the others set to the truth.
-pub fn offsets_error_mm(
+/// As [`label_error_mm`], for several sets of labels of the samples `labelled` lists (each
+/// sample's true depth cast once for all of them): for example what each of a registration's
+/// offsets costs the labels, the others set to the truth.
+pub fn label_errors_mm(
     session: &Path,
     labelled: &Path,
     kit: &Kit,
     truth: &RigOffsets,
-    offsets: &RigOffsets,
-) -> Result<(f64, usize)> {
-    depth_error_mm(session, labelled, kit, truth, |sample, logged, cast| {
-        cast(offsets.true_pose(sample.split, sample.trial, logged), offsets.mount())
-    })
-}
-
-/// The mean absolute difference between the true depth of each of `labelled`'s samples and the
-/// depth `label` gives it (from the sample, its logged pose, and a caster of the true sensor).
-fn depth_error_mm(
-    session: &Path,
-    labelled: &Path,
-    kit: &Kit,
-    truth: &RigOffsets,
-    label: impl Fn(&Sample, RigPose, &dyn Fn(RigPose, Affine3A) -> Result<DepthMap>) -> Result<DepthMap> + Sync,
-) -> Result<(f64, usize)> {
+    labels: &[Labels],
+) -> Result<Vec<(f64, usize)>> {
     let manifest = formats::dataset::Manifest::load(labelled)?;
     let log = formats::session::CaptureLog::read(session)?;
     let by_line: BTreeMap<usize, RigPose> = log.rows.iter().map(|r| (r.line, r.pose)).collect();
     let sensor = &manifest.sensor;
     let rays = RayBundle::new(sensor);
-    let per_sample: Vec<(f64, usize)> = manifest
+    let per_sample: Vec<Vec<(f64, usize)>> = manifest
         .samples
         .par_iter()
-        .map(|sample| -> Result<(f64, usize)> {
+        .map(|sample| -> Result<Vec<(f64, usize)>> {
             let trial = kit.trial(sample.split, sample.trial).with_context(|| {
                 format!("sample {}: trial {} {} not in the kit", sample.id, sample.split, sample.trial)
             })?;
             let row = sample.capture.as_ref().with_context(|| format!("sample {} has no capture row", sample.id))?;
             let logged =
                 *by_line.get(&row.line).with_context(|| format!("{}: no line {}", log.path.display(), row.line))?;
-            let cast = |pose: RigPose, mount: Affine3A| -> Result<DepthMap> {
-                let scene = build_scene_in(kit, trial, pose, mount)?;
+            let cast = |offsets: &RigOffsets| -> Result<DepthMap> {
+                let scene =
+                    build_scene_in(kit, trial, offsets.true_pose(sample.split, sample.trial, logged), offsets.mount())?;
                 Ok(RayCaster::new(&scene.part_refs(), sensor.radius_mm, Skipping::On).depth_map(sensor, &rays).0)
             };
-            let true_depth = cast(truth.true_pose(sample.split, sample.trial, logged), truth.mount())?;
-            let label = label(sample, logged, &cast)?;
-            let (mut sum, mut pixels) = (0f64, 0usize);
-            for (t, l) in true_depth.depth_mm.iter().zip(&label.depth_mm) {
-                if *t > CONTACT_THRESHOLD_MM || *l > CONTACT_THRESHOLD_MM {
-                    sum += (t - l).abs() as f64;
-                    pixels += 1;
-                }
-            }
-            Ok((sum, pixels))
+            let true_depth = cast(truth)?;
+            labels
+                .iter()
+                .map(|labels| {
+                    let label = match labels {
+                        Labels::Written(folder) => {
+                            let path = folder.join(&sample.depth);
+                            let bytes = std::fs::read(&path).with_context(|| path.display().to_string())?;
+                            DepthMap::decode_png_um(&path, &bytes)?
+                        }
+                        Labels::Cast(offsets) => cast(offsets)?,
+                    };
+                    let (mut sum, mut pixels) = (0f64, 0usize);
+                    for (t, l) in true_depth.depth_mm.iter().zip(&label.depth_mm) {
+                        if *t > CONTACT_THRESHOLD_MM || *l > CONTACT_THRESHOLD_MM {
+                            sum += (t - l).abs() as f64;
+                            pixels += 1;
+                        }
+                    }
+                    Ok((sum, pixels))
+                })
+                .collect()
         })
         .collect::<Result<_>>()?;
-    let (sum, pixels) = per_sample.iter().fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    Ok((sum / pixels.max(1) as f64, pixels))
+    Ok((0..labels.len())
+        .map(|k| {
+            let (sum, pixels) = per_sample.iter().fold((0.0, 0), |a, s| (a.0 + s[k].0, a.1 + s[k].1));
+            (sum / pixels.max(1) as f64, pixels)
+        })
+        .collect())
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use dataset::label::LabelFile;
 use dataset::register::Registration;
-use dataset::rig::{RigOffsets, label_error_mm, offsets_error_mm};
+use dataset::rig::{Labels, RigOffsets, label_errors_mm};
 
 use crate::common::{dataset, ok, refused};
 
@@ -89,13 +89,22 @@ fn register_session(dir: &Path, kit: &str, sweeps: u32) -> Registered {
     assert!(report.contains("applied to the labels (--register)"), "{report}");
     let file: LabelFile = formats::read_json(&registered.join("label.json")).unwrap();
     let registration = file.registration.expect("label.json records the offsets applied");
-    let (logged_error_mm, _) = label_error_mm(&session, &logged, &kit, &truth).unwrap();
-    let (registered_error_mm, _) = label_error_mm(&session, &registered, &kit, &truth).unwrap();
     // The labels an offset set gives, cast rather than read: the truth's are the truth, and the
     // registration's are its labels (to the labels' 1 um steps).
-    assert_eq!(offsets_error_mm(&session, &registered, &kit, &truth, &truth).unwrap().0, 0.0);
-    let cast = offsets_error_mm(&session, &registered, &kit, &truth, &registration.offsets).unwrap().0;
-    assert!((cast - registered_error_mm).abs() < 1e-3, "cast {cast} mm, labelled {registered_error_mm} mm");
+    let labels = [
+        Labels::Written(&logged),
+        Labels::Written(&registered),
+        Labels::Cast(&truth),
+        Labels::Cast(&registration.offsets),
+    ];
+    let errors: [(f64, usize); 4] =
+        label_errors_mm(&session, &registered, &kit, &truth, &labels).unwrap().try_into().unwrap();
+    let [logged_error_mm, registered_error_mm, truth_error_mm, cast_error_mm] = errors.map(|(mm, _)| mm);
+    assert_eq!(truth_error_mm, 0.0);
+    assert!(
+        (cast_error_mm - registered_error_mm).abs() < 1e-3,
+        "cast {cast_error_mm} mm, labelled {registered_error_mm} mm"
+    );
     eprintln!(
         "recovered {:?}\nsd {:?}\nleft out {:?}\nlabel depth error against the truth: {registered_error_mm:.4} mm \
          registered, {logged_error_mm:.4} mm as logged",

@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use dataset::label::{Labeller, OnBadRow};
-use dataset::rig::{RigOffsets, label_error_mm, offsets_error_mm};
+use dataset::rig::{Labels, RigOffsets, label_errors_mm};
 use dataset::session::{RendererCamera, SessionCamera, SessionWriter, Sweep};
 use dataset::{Kit, SensorUnit};
 use formats::dataset::GeneratorParams;
@@ -92,9 +92,32 @@ pub fn run(args: Args) -> Result<()> {
             let (plain, _) = label(false)?;
             let (registered, seconds) = label(true)?;
             let reg = registered.registration.context("a sweep session registers")?;
-            let (before, _) = label_error_mm(&session, &dir.join("logged"), &kit, &truth)?;
-            let (after, pixels) = label_error_mm(&session, &dir.join("registered"), &kit, &truth)?;
             let o = &reg.offsets;
+            // What each kind of offset costs the labels: the registration's value of that kind
+            // alone, the rest at the truth.
+            let kinds = [
+                (
+                    "z zeros",
+                    (|t: &mut RigOffsets, o: &RigOffsets| t.z_zero_by_trial_mm = o.z_zero_by_trial_mm.clone())
+                        as fn(&mut RigOffsets, &RigOffsets),
+                ),
+                ("x/y", |t, o| (t.x_mm, t.y_mm) = (o.x_mm, o.y_mm)),
+                ("tilts", |t, o| (t.tilt_x_deg, t.tilt_y_deg) = (o.tilt_x_deg, o.tilt_y_deg)),
+                ("B", |t, o| t.b_zero_deg = o.b_zero_deg),
+            ];
+            let alone: Vec<RigOffsets> = kinds
+                .iter()
+                .map(|(_, pick)| {
+                    let mut alone = truth.clone();
+                    pick(&mut alone, o);
+                    alone
+                })
+                .collect();
+            let (logged_dir, registered_dir) = (dir.join("logged"), dir.join("registered"));
+            let mut labels = vec![Labels::Written(&logged_dir), Labels::Written(&registered_dir)];
+            labels.extend(alone.iter().map(Labels::Cast));
+            let errors = label_errors_mm(&session, &registered_dir, &kit, &truth, &labels)?;
+            let ((before, _), (after, pixels)) = (errors[0], errors[1]);
             let z_errors: Vec<f64> =
                 o.z_zero_by_trial_mm.iter().map(|(t, z)| (z - truth.z_zero_by_trial_mm[t]).abs() as f64).collect();
             let z_max = z_errors.iter().cloned().fold(0.0, f64::max);
@@ -119,26 +142,8 @@ pub fn run(args: Args) -> Result<()> {
                 truth.y_mm,
                 if met { "met" } else { "NOT met" }
             );
-            // What each kind of offset costs the labels: the registration's value of that kind
-            // alone, the rest at the truth.
-            let mut costs = Vec::new();
-            for (kind, pick) in [
-                (
-                    "z zeros",
-                    (|t: &mut RigOffsets, o: &RigOffsets| t.z_zero_by_trial_mm = o.z_zero_by_trial_mm.clone())
-                        as fn(&mut RigOffsets, &RigOffsets),
-                ),
-                ("x/y", |t, o| (t.x_mm, t.y_mm) = (o.x_mm, o.y_mm)),
-                ("tilts", |t, o| (t.tilt_x_deg, t.tilt_y_deg) = (o.tilt_x_deg, o.tilt_y_deg)),
-                ("B", |t, o| t.b_zero_deg = o.b_zero_deg),
-            ] {
-                let mut alone = truth.clone();
-                pick(&mut alone, o);
-                costs.push(format!(
-                    "{kind} {:.4}",
-                    offsets_error_mm(&session, &dir.join("registered"), &kit, &truth, &alone)?.0
-                ));
-            }
+            let costs: Vec<String> =
+                kinds.iter().zip(&errors[2..]).map(|((kind, _), (mm, _))| format!("{kind} {mm:.4}")).collect();
             println!("        label error from each kind alone (mm): {}", costs.join(", "));
             if unswept > 0 {
                 println!("        {unswept} trials of the log had no usable sweep");

@@ -138,36 +138,70 @@ fn seen(mask: &[bool]) -> Seen<'_> {
 struct Search {
     bracket: (f32, f32),
     probe_mm: f64,
-    /// Whether a linearisation checks that its slopes hold.
-    judge: bool,
 }
 
-/// The ray cast's account of a sweep under candidate offsets: its first touch (mm of logged
-/// travel) and the contact's depth-weighted centroid (px) `probe_mm` past it, where the image's
-/// was taken.
-fn predict(
-    kit: &Kit,
-    sweep: &SweepRows,
-    rig: &RigOffsets,
-    sensor: &Sensor,
-    rays: &RayBundle,
-    mask: &[bool],
-    Search { bracket, probe_mm, .. }: Search,
-) -> Result<(f64, [f64; 2])> {
-    let touch = first_touch_in(kit, sweep.trial, sweep.pose, rig, sensor, rays, bracket, seen(mask))?;
-    let pose = RigPose {
-        z_travel_mm: touch + probe_mm as f32,
-        b_axis_deg: sweep.pose.b_axis_deg + rig.b_zero_deg,
-        ..sweep.pose
-    };
-    let scene = build_scene_in(kit, sweep.trial, pose, rig.mount())?;
-    // The contact of the parts whose touch was counted.
-    let parts = seen(mask).parts(&scene);
-    let (depth, _) = RayCaster::new(&parts, sensor.radius_mm, Skipping::On).depth_map(sensor, rays);
-    let centroid =
-        blob_centroid(sensor.crop_size_px as usize, |p| if mask[p] { depth.depth_mm[p] as f64 } else { 0.0 })
-            .context("no contact past first touch")?;
-    Ok((touch as f64, centroid))
+/// What every cast of the session shares: the kit, the sensor with its rays, and the useful
+/// disk.
+struct Caster<'a> {
+    kit: &'a Kit,
+    sensor: &'a Sensor,
+    rays: RayBundle,
+    mask: Vec<bool>,
+}
+
+impl Caster<'_> {
+    /// The ray cast's account of a sweep under candidate offsets: its first touch (mm of logged
+    /// travel) and the contact's depth-weighted centroid (px) `probe_mm` past it, where the
+    /// image's was taken.
+    fn predict(
+        &self,
+        sweep: &SweepRows,
+        rig: &RigOffsets,
+        Search { bracket, probe_mm }: Search,
+    ) -> Result<(f64, [f64; 2])> {
+        let Caster { kit, sensor, rays, mask } = self;
+        let touch = first_touch_in(kit, sweep.trial, sweep.pose, rig, sensor, rays, bracket, seen(mask))?;
+        let pose = RigPose {
+            z_travel_mm: touch + probe_mm as f32,
+            b_axis_deg: sweep.pose.b_axis_deg + rig.b_zero_deg,
+            ..sweep.pose
+        };
+        let scene = build_scene_in(kit, sweep.trial, pose, rig.mount())?;
+        // The contact of the parts whose touch was counted.
+        let parts = seen(mask).parts(&scene);
+        let (depth, _) = RayCaster::new(&parts, sensor.radius_mm, Skipping::On).depth_map(sensor, rays);
+        let centroid =
+            blob_centroid(sensor.crop_size_px as usize, |p| if mask[p] { depth.depth_mm[p] as f64 } else { 0.0 })
+                .context("no contact past first touch")?;
+        Ok((touch as f64, centroid))
+    }
+
+    /// The cast's touch and centroid for a sweep at offsets `theta`, and their derivatives (and,
+    /// where `judge`, whether the centroid's slopes hold a step away).
+    fn linearise(&self, g: &SweepRows, theta: &[f64; 5], search: Search, judge: bool) -> Result<Linearised> {
+        let at = |theta: &[f64; 5]| self.predict(g, &offsets_of(theta), search);
+        let (touch_mm, centroid_px) = at(theta)?;
+        let (mut d_touch, mut d_centroid) = ([0.0; 5], [[0.0; 2]; 5]);
+        for (k, &step) in STEPS.iter().enumerate() {
+            let mut moved = *theta;
+            moved[k] += step as f64;
+            let (t, c) = at(&moved)?;
+            d_touch[k] = (t - touch_mm) / step as f64;
+            d_centroid[k] = [(c[0] - centroid_px[0]) / step as f64, (c[1] - centroid_px[1]) / step as f64];
+        }
+        // One step back along every offset at once, to see whether the slopes hold there (a
+        // cast that cannot follow the sweep there does not).
+        let bend_px = if judge {
+            let back: [f64; 5] = std::array::from_fn(|k| theta[k] - STEPS[k] as f64);
+            at(&back).map_or(f64::INFINITY, |(_, c)| {
+                let slope = |a: usize| (0..5).map(|k| d_centroid[k][a] * STEPS[k] as f64).sum::<f64>();
+                (0..2).map(|a| (c[a] - (centroid_px[a] - slope(a))).abs()).fold(0.0, f64::max)
+            })
+        } else {
+            0.0
+        };
+        Ok(Linearised { touch_mm, centroid_px, d_touch, d_centroid, bend_px })
+    }
 }
 
 /// The offsets in the order of [`STEPS`], as a rig's errors (no z zeros).
@@ -194,41 +228,6 @@ struct Linearised {
     bend_px: f64,
 }
 
-/// The cast's touch and centroid for a sweep at offsets `theta`, and their derivatives (and,
-/// where `search.judge`, whether the centroid's slopes hold a step away).
-fn linearise(
-    kit: &Kit,
-    g: &SweepRows,
-    theta: &[f64; 5],
-    sensor: &Sensor,
-    rays: &RayBundle,
-    mask: &[bool],
-    search: Search,
-) -> Result<Linearised> {
-    let at = |theta: &[f64; 5]| predict(kit, g, &offsets_of(theta), sensor, rays, mask, search);
-    let (touch_mm, centroid_px) = at(theta)?;
-    let (mut d_touch, mut d_centroid) = ([0.0; 5], [[0.0; 2]; 5]);
-    for (k, &step) in STEPS.iter().enumerate() {
-        let mut moved = *theta;
-        moved[k] += step as f64;
-        let (t, c) = at(&moved)?;
-        d_touch[k] = (t - touch_mm) / step as f64;
-        d_centroid[k] = [(c[0] - centroid_px[0]) / step as f64, (c[1] - centroid_px[1]) / step as f64];
-    }
-    // One step back along every offset at once, to see whether the slopes hold there (a cast
-    // that cannot follow the sweep there does not).
-    let bend_px = if search.judge {
-        let back: [f64; 5] = std::array::from_fn(|k| theta[k] - STEPS[k] as f64);
-        at(&back).map_or(f64::INFINITY, |(_, c)| {
-            let slope = |a: usize| (0..5).map(|k| d_centroid[k][a] * STEPS[k] as f64).sum::<f64>();
-            (0..2).map(|a| (c[a] - (centroid_px[a] - slope(a))).abs()).fold(0.0, f64::max)
-        })
-    } else {
-        0.0
-    };
-    Ok(Linearised { touch_mm, centroid_px, d_touch, d_centroid, bend_px })
-}
-
 /// Linearisations: the second about the first's estimate.
 const GAUSS_NEWTON_PASSES: usize = 2;
 
@@ -245,8 +244,8 @@ pub fn register(
     if groups.is_empty() {
         return Ok(None);
     }
-    let mask = sensor.valid_mask();
-    let rays = RayBundle::new(sensor);
+    let caster = Caster { kit, sensor, rays: RayBundle::new(sensor), mask: sensor.valid_mask() };
+    let mask = &caster.mask;
     let n = sensor.crop_size_px as usize;
     let onsets: Vec<Result<Onset, String>> = groups
         .par_iter()
@@ -256,12 +255,12 @@ pub fn register(
                 let frame = read_crop(&session.join(&r.frame), sensor)?;
                 // A camera's exposure and colour balance drift between frames: taken out
                 // against the reference as the contact gate does.
-                let frame = sensor::gate::Balance::fit(&frame, reference, &mask).undo(&frame);
-                maps.push(change_map(&frame, reference, &mask));
+                let frame = sensor::gate::Balance::fit(&frame, reference, mask).undo(&frame);
+                maps.push(change_map(&frame, reference, mask));
                 frames.push(frame);
             }
             let z: Vec<f32> = g.rows.iter().map(|r| r.pose.z_travel_mm).collect();
-            Ok(onset(&frames, &maps, &z, n, &mask))
+            Ok(onset(&frames, &maps, &z, n, mask))
         })
         .collect::<Result<_>>()?;
     let mut used: Vec<(&SweepRows, Onset)> = Vec::new();
@@ -277,7 +276,9 @@ pub fn register(
     let full = (MIN_Z_TRAVEL_MM, sensor.max_depth_mm as f32);
     let logged: Vec<Result<f32>> = used
         .par_iter()
-        .map(|(g, _)| first_touch_in(kit, g.trial, g.pose, &RigOffsets::default(), sensor, &rays, full, seen(&mask)))
+        .map(|(g, _)| {
+            first_touch_in(kit, g.trial, g.pose, &RigOffsets::default(), sensor, &caster.rays, full, seen(mask))
+        })
         .collect();
     let mut cast = Vec::new();
     for ((g, o), t) in used.into_iter().zip(logged) {
@@ -300,8 +301,7 @@ pub fn register(
                 // About the log, far from the truth, a contact may jump where it would not near
                 // it, and a short session needs every slope to get near: only the passes about
                 // an estimate judge the slopes.
-                let search = Search { bracket: (t - 1.5, t + 1.5), probe_mm: o.probe_mm, judge: pass > 0 };
-                linearise(kit, g, &theta, sensor, &rays, &mask, search)
+                caster.linearise(g, &theta, Search { bracket: (t - 1.5, t + 1.5), probe_mm: o.probe_mm }, pass > 0)
             })
             .collect();
         uncast = lin.iter().enumerate().filter_map(|(i, l)| Some((i, format!("{:#}", l.as_ref().err()?)))).collect();
