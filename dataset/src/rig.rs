@@ -127,8 +127,8 @@ pub fn label_errors_mm(
             let true_depth = cast(truth)?;
             labels
                 .iter()
-                .map(|labels| {
-                    let label = match labels {
+                .map(|set| {
+                    let label = match set {
                         Labels::Written(folder) => {
                             let path = folder.join(&sample.depth);
                             let bytes = std::fs::read(&path).with_context(|| path.display().to_string())?;

@@ -118,10 +118,12 @@ pub fn run(args: Args) -> Result<()> {
             labels.extend(alone.iter().map(Labels::Cast));
             let errors = label_errors_mm(&session, &registered_dir, &kit, &truth, &labels)?;
             let ((before, _), (after, pixels)) = (errors[0], errors[1]);
-            let z_errors: Vec<f64> =
-                o.z_zero_by_trial_mm.iter().map(|(t, z)| (z - truth.z_zero_by_trial_mm[t]).abs() as f64).collect();
-            let z_max = z_errors.iter().cloned().fold(0.0, f64::max);
-            let z_mean = z_errors.iter().sum::<f64>() / z_errors.len().max(1) as f64;
+            let z_signed: Vec<f64> =
+                o.z_zero_by_trial_mm.iter().map(|(t, z)| (z - truth.z_zero_by_trial_mm[t]) as f64).collect();
+            let z_max = z_signed.iter().fold(0.0, |a: f64, e| a.max(e.abs()));
+            let z_mean = z_signed.iter().map(|e| e.abs()).sum::<f64>() / z_signed.len().max(1) as f64;
+            // Onsets found late or early all one way shift every zero alike.
+            let z_bias = z_signed.iter().sum::<f64>() / z_signed.len().max(1) as f64;
             let xy = (o.x_mm - truth.x_mm).abs().max((o.y_mm - truth.y_mm).abs()) as f64;
             let tilt = (o.tilt_x_deg - truth.tilt_x_deg).abs().max((o.tilt_y_deg - truth.tilt_y_deg).abs()) as f64;
             let b = (o.b_zero_deg - truth.b_zero_deg).abs() as f64;
@@ -130,12 +132,12 @@ pub fn run(args: Args) -> Result<()> {
             let unswept = plain.registration.as_ref().map_or(0, |r| r.unswept_trials.len());
             println!(
                 "{name:6} rig {seed}: {} sweeps used ({} left out), {} trials' z zeros: max error {z_max:.3} mm, mean \
-                 {z_mean:.3} mm; x/y error {xy:.3} mm (x {:+.3} vs {:+.3}, y {:+.3} vs {:+.3}); tilts {tilt:.2} deg; B \
-                 {b:.2} deg; label depth error against the truth {after:.4} mm registered, {before:.4} mm as logged \
-                 ({pixels} px); registered labelling {seconds:.1} s; goals {}",
+                 {z_mean:.3} mm, signed mean {z_bias:+.3} mm; x/y error {xy:.3} mm (x {:+.3} vs {:+.3}, y {:+.3} vs \
+                 {:+.3}); tilts {tilt:.2} deg; B {b:.2} deg; label depth error against the truth {after:.4} mm \
+                 registered, {before:.4} mm as logged ({pixels} px); registered labelling {seconds:.1} s; goals {}",
                 reg.sweeps,
                 reg.left_out.len(),
-                z_errors.len(),
+                z_signed.len(),
                 o.x_mm,
                 truth.x_mm,
                 o.y_mm,

@@ -150,6 +150,13 @@ struct Caster<'a> {
 }
 
 impl Caster<'_> {
+    /// The logged travel (mm) within `bracket` at which an indenter of the sweep first meets the
+    /// useful disk under candidate offsets.
+    fn first_touch(&self, sweep: &SweepRows, rig: &RigOffsets, bracket: (f32, f32)) -> Result<f32> {
+        let Caster { kit, sensor, rays, mask } = self;
+        first_touch_in(kit, sweep.trial, sweep.pose, rig, sensor, rays, bracket, seen(mask))
+    }
+
     /// The ray cast's account of a sweep under candidate offsets: its first touch (mm of logged
     /// travel) and the contact's depth-weighted centroid (px) `probe_mm` past it, where the
     /// image's was taken.
@@ -160,7 +167,7 @@ impl Caster<'_> {
         Search { bracket, probe_mm }: Search,
     ) -> Result<(f64, [f64; 2])> {
         let Caster { kit, sensor, rays, mask } = self;
-        let touch = first_touch_in(kit, sweep.trial, sweep.pose, rig, sensor, rays, bracket, seen(mask))?;
+        let touch = self.first_touch(sweep, rig, bracket)?;
         let pose = RigPose {
             z_travel_mm: touch + probe_mm as f32,
             b_axis_deg: sweep.pose.b_axis_deg + rig.b_zero_deg,
@@ -274,12 +281,8 @@ pub fn register(
     // A sweep the cast cannot follow (no first touch in its travel or near it under candidate
     // offsets) is left out, named, rather than stop the labels.
     let full = (MIN_Z_TRAVEL_MM, sensor.max_depth_mm as f32);
-    let logged: Vec<Result<f32>> = used
-        .par_iter()
-        .map(|(g, _)| {
-            first_touch_in(kit, g.trial, g.pose, &RigOffsets::default(), sensor, &caster.rays, full, seen(mask))
-        })
-        .collect();
+    let logged: Vec<Result<f32>> =
+        used.par_iter().map(|(g, _)| caster.first_touch(g, &RigOffsets::default(), full)).collect();
     let mut cast = Vec::new();
     for ((g, o), t) in used.into_iter().zip(logged) {
         match t {
