@@ -3,7 +3,11 @@
 //! the quickstart's recipe (the unit's own look; a random look per sample; the unit's own look
 //! with `train fit --vary-look`'s image-space jitter), each read zero-shot by sessions filmed
 //! with the independent image model (`gelcam`), which no run trains on, and by the unit's own
-//! test frames.
+//! test frames. With `--finetune-fractions`, each arm's model is also exported and read by
+//! `infer`'s evaluation on each gelcam session's test split (as a lab would deploy it), then
+//! fine-tuned on a few of the session's frames as `train finetune` does, beside a model trained
+//! on the same frames from scratch: does a start on random looks need fewer of a new gel's
+//! labelled frames?
 
 use std::path::{Path, PathBuf};
 
@@ -13,6 +17,8 @@ use dataset::label::{Labeller, OnBadRow};
 use dataset::session::SessionWriter;
 use dataset::{Kit, Split};
 use formats::dataset::GeneratorParams;
+use infer::Predictor;
+use infer::eval::SplitStats;
 use model::{DenseDepth, DenseDepthConfig};
 use train::data::{DepthBatcher, DepthDataset};
 use train::{FitConfig, OnBadData, Recipe, Start, fit, validate};
@@ -34,19 +40,44 @@ pub struct Args {
     /// Work folder (resumable: datasets, sessions and finished runs are reused).
     #[arg(long, default_value = "out/bench-looks")]
     out: PathBuf,
+    /// The ways of training to run, comma-separated (each run is reused once finished).
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "own,random,jitter")]
+    arms: Vec<ArmKind>,
+    /// Also fine-tune each arm's model, and train one from scratch, on these fractions of each
+    /// gelcam session's train split (comma-separated; none by default), and read every gelcam
+    /// session's test split as `infer eval` reads it (the bundle's gain, tare and gate): each
+    /// arm zero-shot, then each fine-tuned and from-scratch model.
+    #[arg(long, value_delimiter = ',')]
+    finetune_fractions: Vec<f64>,
+    /// Epochs of each fine-tuning and from-scratch run (`train finetune`'s settings otherwise).
+    #[arg(long, default_value_t = 40)]
+    finetune_epochs: usize,
+    /// Seed of the fine-tuning and from-scratch runs: their subset of the frames, data order and
+    /// fresh weights (run once per seed for the spread).
+    #[arg(long, default_value_t = 0)]
+    finetune_seed: u64,
+}
+
+/// `--arms`' names for the ways of training.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum ArmKind {
+    Own,
+    Random,
+    Jitter,
 }
 
 /// One way of training.
 struct Arm {
+    kind: ArmKind,
     name: &'static str,
     random_looks: bool,
     vary_look: bool,
 }
 
 const ARMS: [Arm; 3] = [
-    Arm { name: "own look", random_looks: false, vary_look: false },
-    Arm { name: "random looks (generator)", random_looks: true, vary_look: false },
-    Arm { name: "own look + image jitter (--vary-look)", random_looks: false, vary_look: true },
+    Arm { kind: ArmKind::Own, name: "own look", random_looks: false, vary_look: false },
+    Arm { kind: ArmKind::Random, name: "random looks (generator)", random_looks: true, vary_look: false },
+    Arm { kind: ArmKind::Jitter, name: "own look + image jitter (--vary-look)", random_looks: false, vary_look: true },
 ];
 
 pub fn run(args: Args) -> Result<()> {
@@ -78,7 +109,9 @@ pub fn run(args: Args) -> Result<()> {
         }
         .run()?;
         // Labelled through the unit's true geometry: the figure is the look's, not a
-        // calibration's (`bench foreign` measures the two together).
+        // calibration's (`bench foreign` measures the two together). With force labels, as
+        // `dataset label` makes them, so that a bundle of any arm (the quickstart's network has
+        // the pressure output) can be fine-tuned on the session (`train finetune`).
         let data = dir.join("data");
         Labeller {
             session,
@@ -87,7 +120,7 @@ pub fn run(args: Args) -> Result<()> {
             kit: &kit,
             on_bad_row: OnBadRow::Stop,
             z: Default::default(),
-            force: None,
+            force: Some(dataset::mechanics::Material::PAPER),
             shard: None,
             register: false,
         }
@@ -95,8 +128,14 @@ pub fn run(args: Args) -> Result<()> {
         sets.push((format!("gelcam unit {g} (membrane {:.2} px)", unit.look.membrane_sigma_px), data, None));
     }
 
+    let arms: Vec<&Arm> = ARMS.iter().filter(|a| args.arms.contains(&a.kind)).collect();
+    anyhow::ensure!(!arms.is_empty(), "--arms: name at least one of own, random, jitter");
+    // Each gelcam unit's number, name and labelled session.
+    let gel_sets: Vec<(u64, String, PathBuf)> =
+        args.gelcam_units.iter().zip(&sets[1..]).map(|(&g, (name, dir, _))| (g, name.clone(), dir.clone())).collect();
+    let mut deployed: Vec<(String, String, SplitStats)> = Vec::new();
     let mut results = Vec::new();
-    for arm in &ARMS {
+    for arm in &arms {
         let data = if arm.random_looks {
             let dir = args.out.join(format!("random-{}-{}", args.own_unit, args.samples));
             let p = GeneratorParams { random_looks: true, ..params(0, args.samples) };
@@ -115,12 +154,58 @@ pub fn run(args: Args) -> Result<()> {
         );
         println!("[{}] training ({run_name})", arm.name);
         let start = Start { model_config: model_config.clone(), weights: None };
-        let fitted = fit(&args.out.join(run_name), &config, start, &device, true).context("training (run again)")?;
+        let run_dir = args.out.join(&run_name);
+        let fitted = fit(&run_dir, &config, start, &device, true).context("training (run again)")?;
+        if !args.finetune_fractions.is_empty() {
+            for (g, name, dir) in &gel_sets {
+                let tag = format!("{run_name}-gel{g}-{}", args.gelcam_samples);
+                let stats = read_deployed(&fitted, &run_dir, dir, &args.out.join(format!("read-{tag}")), &device)?;
+                deployed.push((name.clone(), format!("{}, zero-shot", arm.name), stats));
+                for &fraction in &args.finetune_fractions {
+                    let tune = FitConfig {
+                        epochs: args.finetune_epochs,
+                        train_fraction: fraction,
+                        seed: args.finetune_seed,
+                        net_range: config.net_range,
+                        // As `train finetune` sets it: the force terms where the bundle has the output.
+                        force_weight: if fitted.state.model.pressure { FitConfig::DEFAULT_FORCE_WEIGHT } else { 0.0 },
+                        ..FitConfig::new(dir.clone(), config.input_hw)
+                    };
+                    let run = args
+                        .out
+                        .join(format!("tune-{tag}-{fraction}-{}ep-s{}", args.finetune_epochs, args.finetune_seed));
+                    let start = Start { model_config: fitted.state.model.clone(), weights: Some(fitted.net.clone()) };
+                    let tuned = fit(&run, &tune, start, &device, true).context("fine-tuning (run again)")?;
+                    let stats = read_deployed(&tuned, &run, dir, &run, &device)?;
+                    deployed.push((name.clone(), format!("{}, fine-tuned on {fraction}", arm.name), stats));
+                }
+            }
+        }
         let mut row = Vec::new();
         for (_, dir, split) in &sets {
             row.push(read_set(&fitted.net, &config, &model_config, dir, *split, &device)?);
         }
         results.push(row);
+    }
+
+    // The same frames from scratch: the quickstart's recipe on the fine-tuning's subsets.
+    for (g, name, dir) in gel_sets.iter().filter(|_| !args.finetune_fractions.is_empty()) {
+        for &fraction in &args.finetune_fractions {
+            let cfg = FitConfig {
+                epochs: args.finetune_epochs,
+                train_fraction: fraction,
+                seed: args.finetune_seed,
+                ..recipe.fit_config(dir.clone())
+            };
+            let run = args.out.join(format!(
+                "scratch-gel{g}-{}-{fraction}-{}ep-s{}",
+                args.gelcam_samples, args.finetune_epochs, args.finetune_seed
+            ));
+            let start = Start { model_config: model_config.clone(), weights: None };
+            let fitted = fit(&run, &cfg, start, &device, true).context("training (run again)")?;
+            let stats = read_deployed(&fitted, &run, dir, &run, &device)?;
+            deployed.push((name.clone(), format!("from scratch on {fraction}"), stats));
+        }
     }
 
     println!(
@@ -129,7 +214,7 @@ pub fn run(args: Args) -> Result<()> {
     );
     let mut header = String::from("| set | images | zeros |");
     let mut rule = String::from("|---|---:|---:|");
-    for arm in &ARMS {
+    for arm in &arms {
         header += &format!(" {} |", arm.name);
         rule += "---:|";
     }
@@ -149,10 +234,48 @@ pub fn run(args: Args) -> Result<()> {
     if sets.len() > 1 {
         println!(
             "mean over the gelcam units: {}",
-            (0..ARMS.len()).map(|a| format!("{} {:.4} mm", ARMS[a].name, gel(a))).collect::<Vec<_>>().join(", ")
+            arms.iter()
+                .enumerate()
+                .map(|(a, arm)| format!("{} {:.4} mm", arm.name, gel(a)))
+                .collect::<Vec<_>>()
+                .join(", ")
         );
     }
+    if !deployed.is_empty() {
+        println!(
+            "\neach gelcam session's test split read as `infer eval` reads it (fine-tuning: {} epochs, seed {})",
+            args.finetune_epochs, args.finetune_seed
+        );
+        println!("| set | model | test frames with contact | contact L1 (mm) | of zeros' | of them gated |");
+        println!("|---|---|---:|---:|---:|---:|");
+        for (set, model, s) in &deployed {
+            println!(
+                "| {set} | {model} | {} | {:.4} | {:.2} | {} |",
+                s.contact_l1_mm.n,
+                s.contact_l1_mm.mean,
+                s.contact_ratio(),
+                s.gated_contact_frames
+            );
+        }
+    }
     Ok(())
+}
+
+/// A run's model exported as the bundle `{prefix}-bundle` and read by `infer`'s evaluation on
+/// `data`'s test split (written to `{prefix}-eval`): what a lab deploying it would see.
+fn read_deployed(
+    fitted: &train::Fitted,
+    run: &Path,
+    data: &Path,
+    prefix: &Path,
+    device: &burn::tensor::Device,
+) -> Result<SplitStats> {
+    let beside = |what: &str| PathBuf::from(format!("{}-{what}", prefix.display()));
+    let bundle = beside("bundle");
+    train::export::export_net(&fitted.net, &fitted.state, &bundle, &[run])?;
+    let predictor = Predictor::load(&bundle, device)?;
+    let stats = infer::eval::evaluate_dataset(&predictor, data, &[Split::Test], &beside("eval"))?;
+    stats.get(&Split::Test).cloned().with_context(|| format!("{}: no test split", data.display()))
 }
 
 /// What a network reads on one set.
