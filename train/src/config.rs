@@ -161,6 +161,13 @@ impl FitConfig {
         }
     }
 
+    /// What a fine-tuning of the network `from` on `data` starts from (`train finetune`'s
+    /// defaults): [`FitConfig::new`]'s, with the force terms where `from` has the pressure output.
+    pub fn finetune(data: PathBuf, input_hw: [usize; 2], from: &model::DenseDepthConfig) -> Self {
+        let force_weight = if from.pressure { Self::DEFAULT_FORCE_WEIGHT } else { 0.0 };
+        FitConfig { force_weight, ..FitConfig::new(data, input_hw) }
+    }
+
     /// Every dataset folder of the run: `data`, then `more_data`.
     pub fn folders(&self) -> Vec<PathBuf> {
         std::iter::once(self.data.clone()).chain(self.more_data.iter().cloned()).collect()

@@ -426,10 +426,7 @@ fn run_finetune(args: FinetuneArgs) -> Result<()> {
     let input = [file.input_height_px, file.input_width_px];
     // The bundle's depth units: the network's output layer was trained to them.
     let net_range = [file.depth_scale.net_min, file.depth_scale.net_max];
-    let base = FitConfig {
-        force_weight: if file.model.pressure { FitConfig::DEFAULT_FORCE_WEIGHT } else { 0.0 },
-        ..FitConfig::new(args.common.data.clone(), input)
-    };
+    let base = FitConfig::finetune(args.common.data.clone(), input, &file.model);
     let cfg = config(&args.common, base, input, net_range, args.freeze_encoder)?;
     let data = DepthDataset::open(&cfg.data, None, input)?;
     if (data.sensor.radius_mm - file.sensor.radius_mm).abs() > 1e-9 {

@@ -167,9 +167,7 @@ pub fn run(args: Args) -> Result<()> {
                         train_fraction: fraction,
                         seed: args.finetune_seed,
                         net_range: config.net_range,
-                        // As `train finetune` sets it: the force terms where the bundle has the output.
-                        force_weight: if fitted.state.model.pressure { FitConfig::DEFAULT_FORCE_WEIGHT } else { 0.0 },
-                        ..FitConfig::new(dir.clone(), config.input_hw)
+                        ..FitConfig::finetune(dir.clone(), config.input_hw, &fitted.state.model)
                     };
                     let run = args
                         .out
@@ -189,7 +187,7 @@ pub fn run(args: Args) -> Result<()> {
     }
 
     // The same frames from scratch: the quickstart's recipe on the fine-tuning's subsets.
-    for (g, name, dir) in gel_sets.iter().filter(|_| !args.finetune_fractions.is_empty()) {
+    for (g, name, dir) in &gel_sets {
         for &fraction in &args.finetune_fractions {
             let cfg = FitConfig {
                 epochs: args.finetune_epochs,
