@@ -81,6 +81,12 @@ const ARMS: [Arm; 3] = [
 ];
 
 pub fn run(args: Args) -> Result<()> {
+    // Checked here, before any dataset is made, and named as the bench's option (the training
+    // settings' own check would name `train`'s `--train-fraction`).
+    if let Some(bad) = args.finetune_fractions.iter().find(|f| !(**f > 0.0 && **f <= 1.0)) {
+        anyhow::bail!("--finetune-fractions: each fraction must be in (0, 1], got {bad}");
+    }
+    anyhow::ensure!(args.finetune_epochs > 0, "--finetune-epochs: at least 1, got 0");
     let device = model::backend::default_device();
     let kit = Kit::procedural(25.0);
     let recipe = Recipe::Quickstart;
