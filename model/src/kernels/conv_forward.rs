@@ -13,13 +13,16 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
-use super::shared::{Activation, ConvShape, Epilogue, Prologue, SharedMut, column_chunks, matmul};
+use super::shared::{Activation, ConvShape, Epilogue, Prologue, SharedMut, balanced_chunks, matmul};
 use super::{direct, winograd};
 
 /// Output positions per task when the input is gathered, and the most gathered rows (channel
 /// and tap pairs) at a time: together about 2 MB per thread, which the product reads from cache.
 pub(crate) const GATHER_COLUMNS: usize = 512;
 pub(crate) const GATHER_ROWS: usize = 1152;
+/// The fewest output positions a task is cut to for the threads' sake: narrower products each
+/// pack the whole weight again for little work (`balanced_chunks`).
+const GATHER_MIN_COLUMNS: usize = 128;
 /// Output positions per task for a 1x1 convolution read in place.
 const POINTWISE_COLUMNS: usize = 2048;
 
@@ -215,7 +218,7 @@ fn gathered(
     let dst = SharedMut(out.as_mut_ptr());
     let max = if in_place { POINTWISE_COLUMNS } else { GATHER_COLUMNS };
     let phases = (!in_place && s.stride > 1).then(|| Phases::of(image, s));
-    column_chunks(positions, 64, max).into_par_iter().for_each(|cols| {
+    balanced_chunks(positions, GATHER_MIN_COLUMNS, max).into_par_iter().for_each(|cols| {
         let n = cols.len();
         if in_place {
             // SAFETY: tasks write disjoint columns of the [o, positions] output.
@@ -355,7 +358,8 @@ mod tests {
     }
 
     /// Each vector width this CPU has gives the baseline's bits, through both tiles, with and
-    /// without the prologue, over images of several tasks and of a remainder in both directions.
+    /// without the prologue, over images of several tasks and of a remainder in both directions,
+    /// and rows wide enough for the wide kernels' blocks of dealt values (`deal`).
     #[test]
     fn every_vector_width_gives_the_same_bits() {
         let kernels = direct::Kernel::each_detected();
@@ -363,7 +367,7 @@ mod tests {
             eprintln!("no vector kernel on this CPU: nothing to compare");
         }
         for tile in [winograd::Tile::Two, winograd::Tile::Four] {
-            for (channels_in, channels_out, height, width) in [(40, 33, 61, 50), (5, 3, 9, 7)] {
+            for (channels_in, channels_out, height, width) in [(40, 33, 61, 50), (5, 3, 9, 7), (6, 5, 10, 137)] {
                 let s =
                     ConvShape { batch: 1, channels_in, channels_out, height, width, kernel: 3, padding: 1, stride: 1 };
                 let image = values(channels_in * height * width, 21);

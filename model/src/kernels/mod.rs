@@ -39,6 +39,9 @@ mod conv;
 #[allow(unsafe_code)]
 #[cfg_attr(not(feature = "autodiff"), allow(dead_code))]
 mod conv_forward;
+// A row dealt into column phases in SSE or AVX-512 registers.
+#[allow(unsafe_code)]
+mod deal;
 mod dense_block;
 // Output rows written through a shared pointer; kernels compiled for the CPU's vector features.
 #[allow(unsafe_code)]

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use super::conv::{flex_bias, gemm_padding};
 use super::direct::Kernel;
 use super::flex::{contiguous, flex_f32, flex_tensor, from_flex, slice};
-use super::shared::{Activation, ConvShape, Epilogue, InputRows};
+use super::shared::{Activation, ConvShape, Epilogue, InputRows, RowScratch};
 use super::winograd;
 
 /// For each of `output` samples: the two input samples it blends and the weight of the second
@@ -86,19 +86,32 @@ struct UpsampledConcat<'a> {
 
 impl InputRows for UpsampledConcat<'_> {
     #[inline(always)]
-    fn row<'a>(&'a self, channel: usize, y: usize, scratch: &'a mut Vec<f32>) -> &'a [f32] {
+    fn row<'a>(&'a self, channel: usize, y: usize, scratch: &'a mut RowScratch) -> &'a [f32] {
         let ([h, w], [oh, ow]) = (self.hw, self.out_hw);
         if channel >= self.channels {
             return &self.skip[((channel - self.channels) * oh + y) * ow..][..ow];
         }
-        scratch.resize(3 * ow, 0.0);
-        let (top, rest) = scratch.split_at_mut(ow);
-        let (bottom, row) = rest.split_at_mut(ow);
+        // Two widened source rows kept in the scratch's first two parts, keyed by (channel,
+        // source row): consecutive output rows share them, so each is widened once a task.
+        let RowScratch { values, keys } = scratch;
+        values.resize(3 * ow, 0.0);
         let (i0, i1, f) = self.rows[y];
         let plane = &self.x[channel * h * w..][..h * w];
-        widen(&plane[i0 * w..][..w], self.cols, top);
-        widen(&plane[i1 * w..][..w], self.cols, bottom);
-        blend(top, bottom, f, row);
+        let mut part = |source: usize, other: usize| {
+            let key = Some((channel, source));
+            if let Some(at) = keys.iter().position(|k| *k == key) {
+                return at;
+            }
+            // Overwrite the part the other source row does not need.
+            let at = if keys[0] == Some((channel, other)) { 1 } else { 0 };
+            widen(&plane[source * w..][..w], self.cols, &mut values[at * ow..][..ow]);
+            keys[at] = key;
+            at
+        };
+        let top = part(i0, i1);
+        let bottom = part(i1, i0);
+        let (parts, row) = values.split_at_mut(2 * ow);
+        blend(&parts[top * ow..][..ow], &parts[bottom * ow..][..ow], f, row);
         row
     }
 }

@@ -16,7 +16,9 @@
 use rayon::prelude::*;
 
 use super::direct::Kernel;
-use super::shared::{ConvShape, Epilogue, InputRows, Planes, Prologue, SharedMut, column_chunks, matmul};
+use super::shared::{
+    ConvShape, Epilogue, InputRows, Planes, Prologue, RowScratch, SharedMut, balanced_chunks, column_chunks, matmul,
+};
 use super::winograd4;
 
 /// Transformed input held per thread (products x channels x tiles, f32): the channel block is cut so
@@ -37,6 +39,10 @@ const PRODUCT_COLUMNS: usize = 16;
 /// Tiles per task: enough columns for the products to run at speed.
 const MIN_TILES: usize = 32;
 const MAX_TILES: usize = 256;
+/// The same for F(4x4, 3x3), whose tiles hold four times the outputs: its products (36 x
+/// channels_out x tiles) and transformed input stay nearer the core's cache, and an image
+/// splits into more tasks to balance (BENCHMARKS.md, "Winograd's tasks balanced").
+const MAX_TILES_FOUR: usize = 128;
 
 /// One worker's scratch, kept between calls so that a task allocates nothing.
 #[derive(Default)]
@@ -51,8 +57,6 @@ struct Buffers {
     columns: Vec<f32>,
     /// F(4x4, 3x3)'s input tiles after their first transform (`winograd4::transform_input`).
     rows: Vec<f32>,
-    /// An input row the input computes when read (`InputRows::row`).
-    line: Vec<f32>,
 }
 
 thread_local! {
@@ -365,8 +369,15 @@ fn forward_tiles<const SIDE: usize, I: InputRows>(
     let (tile_rows, tw) = (s.height.div_ceil(SIDE), s.width.div_ceil(SIDE));
     let min_rows = MIN_TILES.div_ceil(tw).max(1);
     let dst = SharedMut(out.as_mut_ptr());
-    let task = Task { input, u, s, prologue, epilogue, dst };
-    column_chunks(tile_rows, min_rows, (MAX_TILES / tw).max(min_rows)).into_par_iter().for_each(|rows| {
+    let task = Task { input, u, s, prologue, epilogue, dst, kernel };
+    let chunks = if SIDE == 2 {
+        column_chunks(tile_rows, min_rows, (MAX_TILES / tw).max(min_rows))
+    } else {
+        // Five tasks on two threads left one idle for a fifth of a dense layer's 3x3 convolution
+        // at 120x160: as many tasks as a multiple of the threads.
+        balanced_chunks(tile_rows, min_rows, (MAX_TILES_FOUR / tw).max(1))
+    };
+    chunks.into_par_iter().for_each(|rows| {
         let task = &task;
         match kernel {
             // SAFETY: `Kernel::detect` (or `each_detected`) found these features on this CPU.
@@ -388,6 +399,8 @@ struct Task<'a, I> {
     prologue: Option<Prologue<'a>>,
     epilogue: &'a Epilogue<'a>,
     dst: SharedMut,
+    /// The vector kernel the task runs under (for `deal::quads`).
+    kernel: Option<Kernel>,
 }
 
 /// `tiles` compiled for wider vectors: its transforms (all inlined into it) vectorise over 8 or
@@ -408,7 +421,7 @@ tiles_for!(tiles_avx2, "avx2,fma");
 /// to the output's rows.
 #[inline(always)]
 fn tiles<const SIDE: usize, I: InputRows>(task: &Task<'_, I>, rows: std::ops::Range<usize>) {
-    let Task { input, u, s, prologue, epilogue, dst } = *task;
+    let Task { input, u, s, prologue, epilogue, dst, kernel } = *task;
     let (c, o, (h, w)) = (s.channels_in, s.channels_out, (s.height, s.width));
     let (side, products) = (SIDE, (SIDE + 2) * (SIDE + 2));
     let tw = w.div_ceil(side);
@@ -420,7 +433,10 @@ fn tiles<const SIDE: usize, I: InputRows>(task: &Task<'_, I>, rows: std::ops::Ra
     // Out of the thread-local and back after, rather than in a closure: a closure would be
     // compiled apart from this function's vector features.
     let mut buffers = BUFFERS.take();
-    let Buffers { v, m, split, columns, rows: scratch, line } = &mut buffers;
+    let Buffers { v, m, split, columns, rows: scratch } = &mut buffers;
+    // The rows an input computes when read (`InputRows::row`), in a scratch of the task's own:
+    // what it keeps between rows must never outlive the input it was computed from.
+    let line = &mut RowScratch::default();
     v.resize(v.len().max(products * block * nt), 0.0);
     m.resize(m.len().max(products * o * nt), 0.0);
     if c == 0 {
@@ -443,13 +459,19 @@ fn tiles<const SIDE: usize, I: InputRows>(task: &Task<'_, I>, rows: std::ops::Ra
             let affine = prologue.map(|q| (q.scale[ic], q.shift[ic]));
             for r in 0..side * rows.len() + 2 {
                 let y = (side * rows.start + r).checked_sub(1).filter(|y| *y < h);
-                let row = y.map(|y| input.row(ic, y, line));
+                // A `match`, not `Option::map`: the closure was compiled apart from this
+                // function's vector features, and the upsampled rows it computes with them.
+                #[allow(clippy::manual_map)]
+                let row = match y {
+                    Some(y) => Some(input.row(ic, y, line)),
+                    None => None,
+                };
                 let (group, at) = (&mut split[(r % side) * side * len..], (r / side) * row_len);
                 if SIDE == 2 {
                     let (even, odd) = group.split_at_mut(len);
                     split_row(row, affine, &mut even[at..][..row_len], &mut odd[at..][..row_len]);
                 } else {
-                    winograd4::split_row(row, affine, group, len, at, row_len);
+                    winograd4::split_row(row, affine, group, len, at, row_len, kernel);
                 }
             }
             let v = &mut v[cl * nt..];

@@ -10,6 +10,8 @@
 //! values is one contiguous run across every tile of a task (a spare tile at the end of each
 //! tile row).
 
+use super::direct::Kernel;
+
 /// The input transform `Bt x` of six runs, into six runs.
 #[inline(always)]
 fn bt(x: [&[f32]; 6], y: [&mut [f32]; 6]) {
@@ -119,6 +121,7 @@ pub(super) fn transform_weight(weight: &[f32], channels_out: usize, channels_in:
 /// One input row dealt into the four column phases a row of tiles reads, `phases[k][t] = x[4t +
 /// k - 1]` for tiles `t` in `0..row_len` (zero outside the row, or for a padding row), through
 /// the prologue. `group` holds the four phases `len` apart; this row's values start at `at`.
+/// `kernel`: the caller's vector kernel, for `deal::quads`.
 #[inline(always)]
 pub(super) fn split_row(
     row: Option<&[f32]>,
@@ -127,6 +130,7 @@ pub(super) fn split_row(
     len: usize,
     at: usize,
     row_len: usize,
+    kernel: Option<Kernel>,
 ) {
     let [p0, p1, p2, p3] = runs_mut::<4>(group, at, len, row_len);
     for p in [&mut *p0, &mut *p1, &mut *p2, &mut *p3] {
@@ -135,28 +139,18 @@ pub(super) fn split_row(
     let Some(row) = row else { return };
     let quads = row.len() / 4;
     let value = |v: f32| prologue.map_or(v, |(scale, shift)| (v * scale + shift).max(0.0));
-    // The prologue decided outside the loop, so that each arm is one vectorised loop.
-    let whole = [&mut p0[1..=quads], &mut p1[..quads], &mut p2[..quads], &mut p3[..quads]];
-    match prologue {
-        None => deal(row, whole, |v| v),
-        Some((scale, shift)) => deal(row, whole, |v| (v * scale + shift).max(0.0)),
+    // x[4t + 3] is phase 0's value of tile t + 1.
+    let [w0, w1, w2, w3] = [&mut p1[..quads], &mut p2[..quads], &mut p3[..quads], &mut p0[1..=quads]];
+    super::deal::quads(row, [&mut *w0, &mut *w1, &mut *w2, &mut *w3], kernel);
+    // The prologue afterwards, over runs now in cache: one vectorised loop each.
+    if let Some((scale, shift)) = prologue {
+        for run in [w0, w1, w2, w3] {
+            run.iter_mut().for_each(|v| *v = (*v * scale + shift).max(0.0));
+        }
     }
     for (i, &v) in row.iter().enumerate().skip(4 * quads) {
         let (phase, t) = ((i + 1) % 4, (i + 1) / 4);
         [&mut *p0, &mut *p1, &mut *p2, &mut *p3][phase][t] = value(v);
-    }
-}
-
-/// `p1[t], p2[t], p3[t], p0[t] = f(row[4t..4t + 4])` for the row's whole quads.
-#[inline(always)]
-fn deal(row: &[f32], [p0, p1, p2, p3]: [&mut [f32]; 4], f: impl Fn(f32) -> f32) {
-    let n = p0.len();
-    let (p1, p2, p3) = (&mut p1[..n], &mut p2[..n], &mut p3[..n]);
-    for (t, x) in row[..4 * n].chunks_exact(4).enumerate() {
-        p1[t] = f(x[0]);
-        p2[t] = f(x[1]);
-        p3[t] = f(x[2]);
-        p0[t] = f(x[3]);
     }
 }
 

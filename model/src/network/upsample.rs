@@ -102,17 +102,24 @@ mod tests {
 
     /// The convolution reading the upsampled concatenation row by row gives the bits of the
     /// concatenation written whole and then convolved: through F(2x2, 3x3) (few channels) and
-    /// F(4x4, 3x3) (48 -> 24 channels at 33x35), 2x and uneven scales, batch 2. A convolution
-    /// that is not Winograd's is left to the two steps.
+    /// F(4x4, 3x3) (48 -> 24 channels at 33x35), 2x and uneven scales, batch 2; one upsampled
+    /// channel over several tasks three times, so that an input that read rows of an earlier
+    /// one (kept between rows, `RowScratch`) would show. A convolution that is not Winograd's is
+    /// left to the two steps.
     #[test]
     fn the_convolution_reads_the_concatenation_as_written() {
         use burn::nn::PaddingConfig2d;
         use burn::nn::conv::Conv2dConfig;
         let device = crate::backend::default_device();
         let leaky = kernels::Activation::Leaky(0.2);
-        for (n, [c1, c2, o], [h, w], [oh, ow]) in
-            [(2, [3, 2, 4], [5, 6], [9, 11]), (1, [4, 3, 5], [4, 4], [8, 8]), (2, [24, 24, 24], [17, 18], [33, 35])]
-        {
+        for (n, [c1, c2, o], [h, w], [oh, ow]) in [
+            (2, [3, 2, 4], [5, 6], [9, 11]),
+            (1, [4, 3, 5], [4, 4], [8, 8]),
+            (2, [24, 24, 24], [17, 18], [33, 35]),
+            (2, [1, 2, 3], [17, 18], [33, 35]),
+            (2, [1, 2, 3], [17, 18], [33, 35]),
+            (2, [1, 2, 3], [17, 18], [33, 35]),
+        ] {
             let x = Tensor::<4>::random([n, c1, h, w], Distribution::Normal(0.0, 1.0), &device);
             let skip = Tensor::<4>::random([n, c2, oh, ow], Distribution::Normal(0.0, 1.0), &device);
             let conv = Conv2dConfig::new([c1 + c2, o], [3, 3])
