@@ -71,28 +71,37 @@ mod x86 {
         t
     }
 
+    /// The permutes' lanes for each phase `k`: lanes 0-3 take phase k of the first register's
+    /// four quads, lanes 4-7 the second's; lanes 8-15 repeat them (the shuffle keeps lanes 0-7
+    /// only). Fixed at compile time: `sixteen_quads` runs once per input row.
+    const PHASE_LANES: [[i32; 16]; 4] = {
+        let mut lanes = [[0i32; 16]; 4];
+        let mut k = 0;
+        while k < 4 {
+            let mut l = 0;
+            while l < 16 {
+                let m = (l % 8) as i32;
+                lanes[k][l] = if m < 4 { k as i32 + 4 * m } else { 16 + k as i32 + 4 * (m - 4) };
+                l += 1;
+            }
+            k += 1;
+        }
+        lanes
+    };
+
     /// Quads `from..` in blocks of sixteen: for each phase, two permutes gather its values of
     /// quads 0-7 and 8-15 of the block, and a lane shuffle joins the halves. Returns how many
     /// quads are dealt. Requires every phase `n` long and `row` `4n`.
     #[target_feature(enable = "avx512f")]
     pub(super) unsafe fn sixteen_quads(row: &[f32], mut phases: [&mut [f32]; 4], from: usize) -> usize {
         let n = phases[0].len();
-        // Lanes 0-3 take phase k of the first register's four quads, lanes 4-7 the second's;
-        // lanes 8-15 repeat them (the shuffle keeps lanes 0-7 only).
-        let mut lanes = [[0i32; 16]; 4];
-        for (k, index) in lanes.iter_mut().enumerate() {
-            for (l, lane) in index.iter_mut().enumerate() {
-                let l = (l % 8) as i32;
-                *lane = if l < 4 { k as i32 + 4 * l } else { 16 + k as i32 + 4 * (l - 4) };
-            }
-        }
-        // SAFETY: each array holds 16 values; the caller's CPU has AVX-512F.
+        // SAFETY: each row of `PHASE_LANES` holds 16 values; the caller's CPU has AVX-512F.
         let indices = unsafe {
             [
-                _mm512_loadu_epi32(lanes[0].as_ptr()),
-                _mm512_loadu_epi32(lanes[1].as_ptr()),
-                _mm512_loadu_epi32(lanes[2].as_ptr()),
-                _mm512_loadu_epi32(lanes[3].as_ptr()),
+                _mm512_loadu_epi32(PHASE_LANES[0].as_ptr()),
+                _mm512_loadu_epi32(PHASE_LANES[1].as_ptr()),
+                _mm512_loadu_epi32(PHASE_LANES[2].as_ptr()),
+                _mm512_loadu_epi32(PHASE_LANES[3].as_ptr()),
             ]
         };
         let mut t = from;

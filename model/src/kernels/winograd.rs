@@ -41,7 +41,8 @@ const MIN_TILES: usize = 32;
 const MAX_TILES: usize = 256;
 /// The same for F(4x4, 3x3), whose tiles hold four times the outputs: its products (36 x
 /// channels_out x tiles) and transformed input stay nearer the core's cache, and an image
-/// splits into more tasks to balance (BENCHMARKS.md, "Winograd's tasks balanced").
+/// splits into more tasks to balance (BENCHMARKS.md, "F(4x4, 3x3)'s rows dealt in vector
+/// registers, its tasks balanced").
 const MAX_TILES_FOUR: usize = 128;
 
 /// One worker's scratch, kept between calls so that a task allocates nothing.
