@@ -11,6 +11,7 @@
 //! tile row).
 
 use super::direct::Kernel;
+use super::shared::aligned;
 
 /// The input transform `Bt x` of six runs, into six runs.
 #[inline(always)]
@@ -168,7 +169,7 @@ pub(super) fn transform_input(
     stride: usize,
     rows: &mut Vec<f32>,
 ) {
-    rows.resize(36 * n, 0.0);
+    let rows = aligned(rows, 36 * n);
     let value = |j: usize, i: usize| &split[(4 * (j % 4) + i % 4) * len + (j / 4) * row_len + i / 4..][..n];
     // d B, row by row: rows[(6j + k) * n + f].
     for j in 0..6 {
@@ -198,8 +199,7 @@ pub(super) fn transform_output(
 ) {
     let tile_rows = band.len().div_ceil(4 * width);
     let n = tile_rows * row_len;
-    scratch.resize(40 * n, 0.0);
-    let (half, y) = scratch.split_at_mut(24 * n);
+    let (half, y) = aligned(scratch, 40 * n).split_at_mut(24 * n);
     // At M, column by column: half[(6r + k) * n + f].
     for k in 0..6 {
         let x: [&[f32]; 6] = std::array::from_fn(|j| &m[(6 * j + k) * stride..][..n]);
