@@ -325,7 +325,7 @@ mod tests {
                 assert_eq!(got.as_ptr() as usize % LINE, 0, "size {size} len {len}");
                 got.fill(1.0);
                 let (start, capacity) = (buf.as_ptr() as usize, buf.len());
-                let again = aligned(&mut buf, len) as *mut [f32] as *mut f32 as usize;
+                let again = aligned(&mut buf, len).as_ptr() as usize;
                 assert_eq!((buf.as_ptr() as usize, buf.len()), (start, capacity), "size {size} len {len}");
                 assert!(again >= start && again + 4 * len <= start + 4 * capacity);
                 held.push(buf);
