@@ -286,11 +286,14 @@ struct StreamArgs {
     spin_ms: u64,
     #[command(flatten)]
     loading: Loading,
-    /// Let the reference frame follow the camera, slowly, from frames with no contact (2 s
-    /// after the last contact, averaged over 5 s, a quarter of the way each time; a contact
-    /// never enters it). By default it stays the bundle's, and each frame's global drift is
-    /// taken out (measured better: BENCHMARKS.md, "A drifting camera").
+    /// Keep the bundle's reference frame for the whole stream. By default it follows the
+    /// camera, slowly, from frames with no contact (2 s after the last contact, averaged over
+    /// 5 s, a quarter of the way each time; a contact never enters it); each frame's global
+    /// drift is taken out either way (BENCHMARKS.md, "A drifting camera").
     #[arg(long)]
+    fixed_reference: bool,
+    /// The default since following was measured better; accepted for scripts that name it.
+    #[arg(long, hide = true, conflicts_with = "fixed_reference")]
     follow_reference: bool,
     /// ROS 2 output.
     #[command(flatten)]
@@ -414,7 +417,8 @@ fn stream(args: StreamArgs) -> Result<()> {
         device,
         spin_ms,
         loading,
-        follow_reference,
+        fixed_reference,
+        follow_reference: _,
         ros2,
         view,
         view_every,
@@ -459,11 +463,7 @@ fn stream(args: StreamArgs) -> Result<()> {
     if let Some(view) = view.as_mut() {
         sinks.push(view);
     }
-    let reference = if follow_reference {
-        ReferencePolicy::Follow(infer::RefreshConfig::default())
-    } else {
-        ReferencePolicy::Fixed
-    };
+    let reference = if fixed_reference { ReferencePolicy::Fixed } else { ReferencePolicy::default() };
     let limits = StreamLimits { max_frames, progress_every: Some(std::time::Duration::from_secs(5)), reference };
     let report = infer::stream::run(&predictor, source, &mut sinks, &limits, &stop)?;
     println!("{}", report.summary());

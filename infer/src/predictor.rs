@@ -471,9 +471,9 @@ impl Predictor {
         let c = self.encoder.channels().count();
         let input: Vec<f32> = frames
             .iter()
-            .flat_map(|f| match self.drift(f) {
-                Some(balance) => self.encoder.encode(&balance.undo(f)),
-                None => self.encoder.encode(f),
+            .flat_map(|f| match (self.drift(f), &self.reference) {
+                (Some(balance), Some(reference)) => self.encoder.encode(&balance.undo(f, reference)),
+                _ => self.encoder.encode(f),
             })
             .collect();
         Tensor::<4>::from_data(TensorData::new(input, [frames.len(), c, h, w]), &self.device)
@@ -491,7 +491,7 @@ impl Predictor {
     /// only what drift does unevenly.
     pub fn undrifted(&self, frame: RgbImage) -> RgbImage {
         match self.reference.as_ref().filter(|_| self.balance_input) {
-            Some(base) => sensor::gate::Balance::fit(&frame, base, &self.mask).undo(&frame),
+            Some(base) => sensor::gate::Balance::fit(&frame, base, &self.mask).undo(&frame, base),
             None => frame,
         }
     }

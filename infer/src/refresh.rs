@@ -2,9 +2,9 @@
 //! exposure and white balance move, the gel ages), and a reference taken at the start reads the
 //! drift as contact. The gate takes out a frame's global drift itself ([`sensor::gate::Balance`]);
 //! what is left (the network's input difference, its tare, drift that is not the same
-//! everywhere) can follow the unit as it looks now, slowly, from untouched frames only
-//! (`infer stream --follow-reference`; not the default: measured, it cost contact accuracy on
-//! a drifting simulated camera, `cargo xtask bench drift`).
+//! everywhere) follows the unit as it looks now, slowly, from untouched frames only (`infer
+//! stream`'s default; `--fixed-reference` keeps the bundle's; `cargo xtask bench drift`
+//! measures both).
 
 use image::RgbImage;
 use serde::{Deserialize, Serialize};

@@ -1,6 +1,7 @@
 //! The whole predictor as one ONNX graph (`model::onnx::export_whole`), run by tract, gives
 //! `Predictor::predict_all`'s depth within 1e-3 mm, its pressure and force, and its gate's
-//! answer: on a pressed frame, on the same frame drifted (the balance at work), and on an
+//! answer: on a pressed frame, on the same frame drifted (the balance at work; once until its
+//! bright spots clip), and on an
 //! untouched frame, as it is and drifted (the gate, on the balanced comparison, answers zeros
 //! through its `If`); for RGB and reference-difference inputs, and with the force head.
 
@@ -66,9 +67,15 @@ fn check(config: DenseDepthConfig, edit: impl FnOnce(DenseDepth) -> DenseDepth, 
     let cases = [
         ("pressed", frame.clone()),
         ("drifted", drifted(&frame, [1.06, 0.97, 1.03])),
+        // Bright enough that the LEDs' spots clip at 255 (the balance lifts them to the reference).
+        ("drifted until it clips", drifted(&frame, [1.45, 1.4, 1.5])),
         ("untouched, drifted", drifted(&untouched, [0.95, 1.04, 1.02])),
-        ("untouched", untouched),
+        ("untouched", untouched.clone()),
+        // Every level clipped: no channel keeps enough samples for a fit, so none is undone.
+        ("saturated", RgbImage::from_pixel(untouched.width(), untouched.height(), image::Rgb([255; 3]))),
     ];
+    let clipped = |f: &RgbImage| f.as_raw().iter().filter(|&&v| v == 255).count();
+    assert!(clipped(&cases[2].1) > clipped(&frame) + 100, "the bright case clips");
     for (what, frame) in cases {
         let want: Prediction = predictor.predict_all(&frame).unwrap();
         let got = run(&bytes, &frame);
@@ -79,7 +86,7 @@ fn check(config: DenseDepthConfig, edit: impl FnOnce(DenseDepth) -> DenseDepth, 
         assert!(diff <= 1e-3, "{what}: {diff} mm from predict");
         if what.starts_with("untouched") {
             assert!(!got.contact && got.depth_mm.iter().all(|&d| d == 0.0), "an untouched frame reads zeros");
-        } else {
+        } else if what != "saturated" {
             assert!(got.contact && deepest > min_deepest_mm, "{what}: the pressed frame reads a dent ({deepest} mm)");
         }
         if let Some(force) = want.force {

@@ -88,10 +88,11 @@ fn the_reference_follows_a_drifting_camera_and_drift_does_not_open_the_gate() {
     // Only the pressed frame ran the network: drift did not open the gate.
     let ran: Vec<&str> = followed.frames.iter().filter(|r| r.network_ran).map(|r| r.name.as_str()).collect();
     assert!(ran.len() == 1 && ran[0].ends_with("f010.png"), "{ran:?}");
-    assert!(followed.reference_updates >= 3, "{} updates", followed.reference_updates);
+    assert!(followed.reference_follows && followed.reference_updates >= 3, "{} updates", followed.reference_updates);
     assert!(followed.summary().contains(&format!("updated {} times", followed.reference_updates)));
     let fixed = stream(infer::stream::ReferencePolicy::Fixed);
     assert_eq!(fixed.reference_updates, 0);
+    assert!(!fixed.reference_follows && fixed.summary().contains("the bundle's throughout"));
 }
 
 #[test]
@@ -265,12 +266,16 @@ fn the_command_streams_a_glob_stops_at_max_frames_and_refuses_bad_sources() {
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("stream.json")).unwrap()).unwrap();
     assert_eq!(json["processed"], 3);
     assert_eq!(std::fs::read_dir(out.join("depth")).unwrap().count(), 3);
-    // Workers polling between frames change no result.
+    // The reference follows the camera unless told not to.
+    assert_eq!(json["reference_follows"], true);
+    assert!(stdout.contains("reference frame followed the camera"), "{stdout}");
+    // Workers polling between frames change no result (nor does a fixed reference over three
+    // frames: it could move only after 2 s without contact).
     let polled = tmp.path().join("polled");
     let o = infer(
         &["--bundle", b, "--source", &pattern, "--out", polled.to_str().unwrap(), "--max-frames", "3"]
             .into_iter()
-            .chain(["--spin-ms", "30"])
+            .chain(["--spin-ms", "30", "--fixed-reference"])
             .collect::<Vec<_>>(),
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -278,6 +283,7 @@ fn the_command_streams_a_glob_stops_at_max_frames_and_refuses_bad_sources() {
     let polled_json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(polled.join("stream.json")).unwrap()).unwrap();
     assert_eq!((json["spin_ms"].as_f64(), polled_json["spin_ms"].as_f64()), (Some(0.0), Some(30.0)));
+    assert_eq!(polled_json["reference_follows"], false);
     for entry in std::fs::read_dir(out.join("depth")).unwrap() {
         let name = entry.unwrap().file_name();
         let [a, b] = [&out, &polled].map(|d| std::fs::read(d.join("depth").join(&name)).unwrap());
@@ -293,6 +299,7 @@ fn the_command_streams_a_glob_stops_at_max_frames_and_refuses_bad_sources() {
         }
     };
     refused(&["--bundle", b, "--source", &pattern, "--max-frames", "0"], &["--max-frames", "0"]);
+    refused(&["--bundle", b, "--source", &pattern, "--fixed-reference", "--follow-reference"], &["--fixed-reference"]);
     let missing = format!("{}/nothing-*.png", input.display());
     refused(&["--bundle", b, "--source", &missing], &["no PNG or JPEG frame matches", "nothing-"]);
     #[cfg(not(feature = "v4l2"))]

@@ -71,7 +71,7 @@ pub const BALANCE_MIN: f32 = 0.5;
 pub const BALANCE_MAX: f32 = 2.0;
 /// Reference values darker than this give ratios that noise dominates; they are not used.
 pub const BALANCE_MIN_LEVEL: u8 = 24;
-/// A channel with fewer samples than this keeps gain 1.
+/// A channel with fewer samples than this (its clipped levels left out) keeps gain 1.
 pub const BALANCE_MIN_SAMPLES: u32 = 64;
 /// The trimmed median keeps the bins within `TRIM_SIGMAS` robust standard deviations
 /// (`MAD_TO_SIGMA` median absolute deviations) of the median, and at least `TRIM_MIN_BINS`.
@@ -144,6 +144,9 @@ impl Balance {
 
     /// The median of frame / reference per channel over every second useful pixel whose
     /// reference is bright enough (to 1/800 of a ratio); no drift where too few pixels are.
+    /// A level the camera clipped at 255 bounds its ratio from below only: left out, as the
+    /// reference's own clipped levels are ([`samples`](Self::samples)), so that a camera
+    /// brightening past its range is not fitted darker than it is.
     pub fn fit(frame: &RgbImage, reference: &RgbImage, mask: &[bool]) -> Balance {
         let mut hist = vec![[0u32; 3]; BALANCE_BINS];
         let mut counted = [0u32; 3];
@@ -153,9 +156,9 @@ impl Balance {
         let pixels = mask.len().min(count(frame)).min(count(reference));
         for i in (0..pixels).step_by(2) {
             for c in 0..3 {
-                let q = references[3 * i + c];
-                if Balance::samples(i, mask[i], q) {
-                    hist[bins[usize::from(q) << 8 | usize::from(levels[3 * i + c])] as usize][c] += 1;
+                let (q, p) = (references[3 * i + c], levels[3 * i + c]);
+                if Balance::samples(i, mask[i], q) && p < u8::MAX {
+                    hist[bins[usize::from(q) << 8 | usize::from(p)] as usize][c] += 1;
                     counted[c] += 1;
                 }
             }
@@ -171,9 +174,10 @@ impl Balance {
     }
 
     /// Whether the fit reads pixel `index` (row-major crop) in a channel whose reference value
-    /// is `reference_level`: every second pixel, useful, with a bright enough reference.
+    /// is `reference_level`: every second pixel, useful, with a reference bright enough and not
+    /// clipped (the fit also leaves out the frame's clipped levels).
     pub fn samples(index: usize, useful: bool, reference_level: u8) -> bool {
-        index.is_multiple_of(2) && useful && reference_level >= BALANCE_MIN_LEVEL
+        index.is_multiple_of(2) && useful && (BALANCE_MIN_LEVEL..u8::MAX).contains(&reference_level)
     }
 
     /// Whether this is no drift worth undoing (every gain within 0.5 % of 1: a grey level at
@@ -183,25 +187,43 @@ impl Balance {
     }
 
     /// `frame` with the drift undone (each channel divided by its gain): the frame as the
-    /// reference's camera would have taken it.
-    pub fn undo(&self, frame: &RgbImage) -> RgbImage {
+    /// reference's camera would have taken it. A level the camera clipped at 255 says only that
+    /// the undrifted level is at least 255 / gain; where `reference` is brighter than that, its
+    /// level is the reading (a brighter camera saturates the bright spots near the LEDs, and the
+    /// gain alone would undo them darker than the reference: a change that is not there).
+    pub fn undo(&self, frame: &RgbImage, reference: &RgbImage) -> RgbImage {
         let mut out = frame.clone();
         let inverse = self.gain.map(|g| 1.0 / g);
         // Each channel's 256 levels undone once, then looked up: per pixel, the rounding was a
         // tenth of a contact frame's time (`cargo xtask bench force`).
         let undone: [[u8; 256]; 3] = std::array::from_fn(|c| std::array::from_fn(|v| undo_level(v as u8, inverse[c])));
         let values = 3 * out.width() as usize * out.height() as usize;
+        // A reference smaller than the frame (never in a crop) lifts nothing past its end.
+        let references = reference.as_raw().chunks_exact(3).map(Some).chain(std::iter::repeat(None));
         let raw: &mut [u8] = &mut out;
-        for p in raw[..values].chunks_exact_mut(3) {
-            (p[0], p[1], p[2]) =
-                (undone[0][usize::from(p[0])], undone[1][usize::from(p[1])], undone[2][usize::from(p[2])]);
+        for (p, q) in raw[..values].chunks_exact_mut(3).zip(references) {
+            for c in 0..3 {
+                let level = p[c];
+                p[c] = undone[c][usize::from(level)];
+                if let (u8::MAX, Some(q)) = (level, q) {
+                    p[c] = p[c].max(q[c]);
+                }
+            }
         }
         out
     }
 
-    /// Sum over the channels of |frame - gain x reference| (grey levels).
+    /// The level `reference_level` would show under this drift: times the channel's gain, no
+    /// brighter than the camera can record (a clipped frame matches a reference that clips).
+    pub fn expected(&self, c: usize, reference_level: u8) -> f32 {
+        // Not `f32::min`: its NaN rule cost the gate a tenth of its time (no NaN can arise here).
+        let level = self.gain[c] * reference_level as f32;
+        if level > 255.0 { 255.0 } else { level }
+    }
+
+    /// Sum over the channels of |frame - expected level| (grey levels; [`expected`](Self::expected)).
     pub fn difference(&self, p: [u8; 3], q: [u8; 3]) -> f32 {
-        (0..3).map(|c| (p[c] as f32 - self.gain[c] * q[c] as f32).abs()).sum()
+        (0..3).map(|c| (p[c] as f32 - self.expected(c, q[c])).abs()).sum()
     }
 }
 
@@ -370,7 +392,7 @@ mod tests {
             let mut counted = [0u32; 3];
             for (i, ((p, q), &useful)) in frame.pixels().zip(reference.pixels()).zip(&mask).enumerate() {
                 for c in 0..3 {
-                    if Balance::samples(i, useful, q.0[c]) {
+                    if Balance::samples(i, useful, q.0[c]) && p.0[c] != 255 {
                         hist[balance_bin(p.0[c], q.0[c])][c] += 1;
                         counted[c] += 1;
                     }
@@ -383,10 +405,14 @@ mod tests {
             let fitted = Balance::fit(&frame, &reference, &mask);
             assert_eq!(fitted.gain.map(f32::to_bits), expected.map(f32::to_bits), "case {case}");
             assert!(fitted.gain.iter().zip(gain).all(|(a, b)| (a - b).abs() < 0.02), "case {case}: {fitted:?}");
-            let undone = fitted.undo(&frame);
+            let undone = fitted.undo(&frame, &reference);
             let inverse = fitted.gain.map(|g| 1.0 / g);
-            for (p, q) in frame.pixels().zip(undone.pixels()) {
-                assert_eq!(q.0, [0, 1, 2].map(|c| undo_level(p.0[c], inverse[c])));
+            for ((p, q), r) in frame.pixels().zip(undone.pixels()).zip(reference.pixels()) {
+                let level = |c: usize| match p.0[c] {
+                    255 => undo_level(255, inverse[c]).max(r.0[c]),
+                    v => undo_level(v, inverse[c]),
+                };
+                assert_eq!(q.0, [0, 1, 2].map(level));
             }
             // A container longer than its image (and a longer mask): only the image is read
             // and changed.
@@ -395,8 +421,46 @@ mod tests {
             let longer = RgbImage::from_raw(w, h, longer).expect("container large enough");
             let longer_mask: Vec<bool> = mask.iter().copied().chain([true; 2]).collect();
             assert_eq!(Balance::fit(&longer, &reference, &longer_mask), fitted, "case {case}");
-            assert_eq!(fitted.undo(&longer).as_raw()[undone.as_raw().len()..], [7u8; 6]);
+            assert_eq!(fitted.undo(&longer, &reference).as_raw()[undone.as_raw().len()..], [7u8; 6]);
         }
+    }
+
+    /// A camera brighter by 30 % saturates the reference's bright spots: undone, the frame is
+    /// the reference again (within rounding) on every pixel, the clipped ones included, and
+    /// the gate's comparison sees no change; the gain alone would leave the clipped pixels up
+    /// to 54 levels darker than the reference.
+    #[test]
+    fn a_clipped_level_reads_as_the_reference_where_that_is_brighter() {
+        let (w, h) = (64, 48);
+        let reference =
+            RgbImage::from_fn(w, h, |x, y| image::Rgb([0, 1, 2].map(|c| (24 + (x * 7 + y * 13 + c * 31) % 227) as u8)));
+        let gain = [1.3f32, 1.22, 1.1];
+        let frame = RgbImage::from_fn(w, h, |x, y| {
+            let q = reference.get_pixel(x, y).0;
+            image::Rgb([0, 1, 2].map(|c| (q[c] as f32 * gain[c]).round().min(255.0) as u8))
+        });
+        let clipped = frame.as_raw().iter().filter(|&&v| v == 255).count();
+        assert!(clipped > 300, "the case clips ({clipped} levels)");
+        let mask = vec![true; (w * h) as usize];
+        let balance = Balance::fit(&frame, &reference, &mask);
+        assert!(balance.gain.iter().zip(gain).all(|(a, b)| (a - b).abs() < 0.0025), "{balance:?}");
+        let undone = balance.undo(&frame, &reference);
+        for ((u, q), p) in undone.pixels().zip(reference.pixels()).zip(frame.pixels()) {
+            for c in 0..3 {
+                assert!(
+                    u.0[c].abs_diff(q.0[c]) <= 1,
+                    "channel {c}: {} undone to {}, reference {}",
+                    p.0[c],
+                    u.0[c],
+                    q.0[c]
+                );
+            }
+            assert!(balance.difference(p.0, q.0) <= 3.0, "the gate sees {p:?} against {q:?} as a change");
+        }
+        let gain_only = reference.pixels().zip(frame.pixels()).flat_map(|(q, p)| {
+            (0..3).map(move |c| i32::from(q.0[c]) - i32::from(undo_level(p.0[c], 1.0 / balance.gain[c])))
+        });
+        assert!(gain_only.max().unwrap() > 40, "without the lift the clipped pixels undo dark");
     }
 
     /// A frame of a flat grey unit with noise of `sd` grey levels and, if `contact`, a disk of

@@ -436,7 +436,7 @@ impl DepthDataset {
         };
         let Some(reference) = own.as_ref().or(base.reference.as_ref()) else { return Ok(img) };
         let balance = sensor::gate::Balance::fit(&img, reference, &base.useful);
-        Ok(if balance.is_none() { img } else { balance.undo(&img) })
+        Ok(if balance.is_none() { img } else { balance.undo(&img, reference) })
     }
 
     /// Sample `i`'s camera image file.

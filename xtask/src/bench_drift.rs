@@ -6,8 +6,8 @@
 //! colour cast per channel, and a slow drift per minute (over the whole frame, or on one side of
 //! it). Arms, on the same frames: undrifted; drifted as read before the drift balance (the
 //! gate's fixed comparison, drifted colours into the network); drifted with the balanced gate
-//! and input and the bundle's reference (`infer stream`'s default); the same with a reference
-//! that follows the untouched frames (`--follow-reference`). Each gives the untouched frames gated, those
+//! and input and the bundle's reference (`--fixed-reference`); the same with a reference
+//! that follows the untouched frames (`infer stream`'s default). Each gives the untouched frames gated, those
 //! with a false contact pixel, and the contact L1 of the press frames.
 
 use std::path::PathBuf;
@@ -140,6 +140,22 @@ pub fn run(args: Args) -> Result<()> {
          {after_ms:.2} ms with it ({after_open} opened), of which the balance's fit {fit_ms:.2} ms",
         quiet_frames.len(),
         predictor.file.sensor.crop_size_px
+    );
+    // How far a contact alone moves the balance's fit (undrifted press frames): under drift
+    // that error rides on the gain the input is undone with.
+    let mut moved: Vec<f32> = frames
+        .iter()
+        .filter(|f| f.truth_mm.is_some())
+        .map(|f| Balance::fit(&f.image, &reference, &mask).gain.iter().fold(0f32, |m, g| m.max((g - 1.0).abs())))
+        .collect();
+    moved.sort_by(f32::total_cmp);
+    println!(
+        "a contact alone moves the balance's fit (largest channel's |gain - 1| on {} undrifted press frames): median {:.4}, \
+         90th percentile {:.4}, largest {:.4}",
+        moved.len(),
+        moved[moved.len() / 2],
+        moved[moved.len() * 9 / 10],
+        moved[moved.len() - 1]
     );
     println!();
     println!(

@@ -262,7 +262,7 @@ pub fn register(
                 let frame = read_crop(&session.join(&r.frame), sensor)?;
                 // A camera's exposure and colour balance drift between frames: taken out
                 // against the reference as the contact gate does.
-                let frame = sensor::gate::Balance::fit(&frame, reference, mask).undo(&frame);
+                let frame = sensor::gate::Balance::fit(&frame, reference, mask).undo(&frame, reference);
                 maps.push(change_map(&frame, reference, mask));
                 frames.push(frame);
             }

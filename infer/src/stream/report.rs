@@ -81,8 +81,10 @@ pub struct StreamReport {
     pub network_latency_ms: Percentiles,
     /// The same, frames the gate answered without the network.
     pub gated_latency_ms: Percentiles,
-    /// Times the reference frame moved towards the untouched frames (`--follow-reference`; 0
-    /// without).
+    /// Whether the reference frame followed the camera (the default; false with
+    /// `--fixed-reference` or a bundle without a reference frame).
+    pub reference_follows: bool,
+    /// Times the reference frame moved towards the untouched frames.
     pub reference_updates: u64,
     /// How long the network's CPU workers kept polling for work after each frame
     /// (`--spin-ms`; 0: they slept), which the latencies depend on.
@@ -108,6 +110,7 @@ impl StreamReport {
             latency_ms: Percentiles::default(),
             network_latency_ms: Percentiles::default(),
             gated_latency_ms: Percentiles::default(),
+            reference_follows: false,
             reference_updates: 0,
             spin_ms: model::backend::spin().as_secs_f64() * 1e3,
             frames: Vec::new(),
@@ -169,10 +172,13 @@ impl StreamReport {
             line("all", &self.latency_ms),
             line("network ran", &self.network_latency_ms),
             line("gate (no contact)", &self.gated_latency_ms),
-            format!(
-                "reference frame updated {} times from untouched frames (--follow-reference)",
-                self.reference_updates
-            ),
+            match self.reference_follows {
+                true => format!(
+                    "reference frame followed the camera: updated {} times from untouched frames",
+                    self.reference_updates
+                ),
+                false => "reference frame: the bundle's throughout (--fixed-reference, or none to follow)".into(),
+            },
         ]
         .into_iter()
         .chain(self.problems.iter().map(|p| format!("  problem: {p}")))

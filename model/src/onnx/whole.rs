@@ -294,7 +294,9 @@ impl Graph {
         let bins_len = sensor::gate::BALANCE_BINS;
         let zero = self.scalar("whole.zero", 0.0);
         let one = self.scalar("whole.one", 1.0);
-        let room = self.ints(&format!("whole.balance.room_{}", n.max(bins_len)), &[1], &[n.max(bins_len) as i64]);
+        // Room for one bin past the last: the samples the fit leaves out land there and are cut.
+        let room_len = n.max(bins_len + 1);
+        let room = self.ints(&format!("whole.balance.room_{room_len}"), &[1], &[room_len as i64]);
         let zeros = self.node("Expand", &format!("{name}.zeros"), &[&zero, &room], vec![]);
         let shape = self.ints(&format!("{name}.n"), &[1], &[n as i64]);
         let ones = self.node("Expand", &format!("{name}.ones"), &[&one, &shape], vec![]);
@@ -343,6 +345,14 @@ impl Graph {
         self.node("Clip", name, &[&rounded, &zero, &top], vec![])
     }
 
+    /// The reference frame's planes, `[3, crop, crop]` float grey levels: one constant for the
+    /// balance and the gate.
+    fn reference_planes(&mut self, reference: &RgbImage) -> String {
+        let n = reference.width() as i64;
+        let q: Vec<f32> = (0..3).flat_map(|c| reference.pixels().map(move |p| p.0[c] as f32)).collect();
+        self.floats("whole.reference", &[3, n, n], &q)
+    }
+
     /// The frame's drift against `reference` taken out, as `Balance::fit` then `undo` do; the
     /// gains are kept for the gate.
     /// `raw`: the frame's planes, `[3, crop, crop]` float grey levels.
@@ -386,19 +396,28 @@ impl Graph {
             let starts: Vec<i64> = q.iter().map(|&q| q as i64 * 256).collect();
             let starts = self.ints(&format!("{name}.table_rows"), &[n as i64], &starts);
             // The samples' levels, gathered as floats and cast: the whole frame is never cast.
-            let p = self.node("Gather", &format!("{name}.frame_f"), &[&flat, &idx], vec![]);
-            let p = self.cast(&format!("{name}.frame"), &p, INT64);
+            let p_f = self.node("Gather", &format!("{name}.frame_f"), &[&flat, &idx], vec![]);
+            let p = self.cast(&format!("{name}.frame"), &p_f, INT64);
             let at = self.node("Add", &format!("{name}.table_at"), &[&p, &starts], vec![]);
             let bins = self.node("Gather", &format!("{name}.bins"), &[&bin_table, &at], vec![]);
+            // The frame's clipped levels are left out: their bin (and below, their deviation) is
+            // one past the last, which the histograms cut; the totals count the rest.
+            let top = self.scalar("whole.level.max", 255.0);
+            let clipped = self.node("GreaterOrEqual", &format!("{name}.clipped"), &[&p_f, &top], vec![]);
+            let beyond = self.int("whole.balance.beyond_bin", BALANCE_BINS as i64);
+            let bins = self.node("Where", &format!("{name}.bins_kept"), &[&clipped, &beyond, &bins], vec![]);
+            let kept = self.node("Less", &format!("{name}.kept"), &[&p_f, &top], vec![]);
+            let kept = self.cast(&format!("{name}.kept_f"), &kept, FLOAT);
+            let total = self.node("ReduceSum", &format!("{name}.total"), &[&kept], vec![attr_int("keepdims", 0)]);
             // The fit's histogram, and its median: the first bin whose running count reaches half.
-            let total = self.scalar(&format!("{name}.total"), n as f32);
             let counts = self.histogram(&format!("{name}.counts"), &bins, n);
             let m = self.first_reaching_half(&format!("{name}.median"), &counts, None, &total);
             // The median absolute deviation: the same over the deviations' histogram.
             // |bins - m| as the larger of the two differences: OpenCV's `Abs` takes floats only.
             let up = self.node("Sub", &format!("{name}.dev"), &[&bins, &m], vec![]);
             let down = self.node("Sub", &format!("{name}.dev_down"), &[&m, &bins], vec![]);
-            let dev = self.node("Max", &format!("{name}.absdev"), &[&up, &down], vec![]);
+            let dev = self.node("Max", &format!("{name}.absdev_all"), &[&up, &down], vec![]);
+            let dev = self.node("Where", &format!("{name}.absdev"), &[&clipped, &beyond, &dev], vec![]);
             let dev_counts = self.histogram(&format!("{name}.dev_counts"), &dev, n);
             let mad = self.first_reaching_half(&format!("{name}.mad"), &dev_counts, None, &total);
             // reach = max(ceil(sigmas x mad x mad_to_sigma), min): in integers, as the f64 product
@@ -431,7 +450,15 @@ impl Graph {
             // The window's median: its first bin whose count (from the window's start) reaches
             // half the window's.
             let trimmed = self.first_reaching_half(&format!("{name}.trimmed"), &counts, Some(&below), &inside);
-            let gain = self.node("Gather", &format!("{name}.gain_scalar"), &[&gain_table, &trimmed], vec![]);
+            let gain = self.node("Gather", &format!("{name}.gain_fitted"), &[&gain_table, &trimmed], vec![]);
+            // Too few samples left: no gain, as the fit keeps 1.
+            let min_samples = self.scalar("whole.balance.min_samples", BALANCE_MIN_SAMPLES as f32);
+            let few = self.node("Less", &format!("{name}.few"), &[&total, &min_samples], vec![]);
+            let one = self.scalar("whole.one", 1.0);
+            let gain = self.node("Where", &format!("{name}.gain_scalar"), &[&few, &one, &gain], vec![]);
+            let no_gain_scalar = self.int("whole.balance.no_gain_bin_scalar", BALANCE_BINS as i64);
+            let trimmed =
+                self.node("Where", &format!("{name}.undo_bin_scalar"), &[&few, &no_gain_scalar, &trimmed], vec![]);
             undo_bins.push(self.reshape(&format!("{name}.undo_bin"), &trimmed, &[1]));
             gains.push(self.reshape(&format!("{name}.gain"), &gain, &[1]));
         }
@@ -454,7 +481,13 @@ impl Graph {
         let inverse = self.node("Gather", "whole.balance.inverse3", &[&inverses, &undo_bins], vec![]);
         let inverse = self.reshape("whole.balance.inverse", &inverse, &[3, 1, 1]);
         let scaled = self.node("Mul", "whole.balance.scaled", &[raw, &inverse], vec![]);
-        let planes = self.grey_level("whole.balance.planes", &scaled);
+        let planes = self.grey_level("whole.balance.undone", &scaled);
+        // A level the camera clipped reads as the reference where that is brighter.
+        let q = self.reference_planes(reference);
+        let lifted = self.node("Max", "whole.balance.lifted", &[&planes, &q], vec![]);
+        let top = self.scalar("whole.level.max", 255.0);
+        let clipped = self.node("GreaterOrEqual", "whole.balance.clipped", &[raw, &top], vec![]);
+        let planes = self.node("Where", "whole.balance.planes", &[&clipped, &lifted, &planes], vec![]);
         Balanced { planes, gains }
     }
 
@@ -463,9 +496,11 @@ impl Graph {
     /// `raw` is the frame's planes as they came, `gains` the balance's.
     fn gate(&mut self, raw: &str, gains: &str, reference: &RgbImage, mask: &[bool], gate: ContactGate) -> String {
         let n = reference.width() as i64;
-        let q: Vec<f32> = (0..3).flat_map(|c| reference.pixels().map(move |p| p.0[c] as f32)).collect();
-        let q = self.floats("whole.gate.reference", &[3, n, n], &q);
-        let gq = self.node("Mul", "whole.gate.expected", &[gains, &q], vec![]);
+        let q = self.reference_planes(reference);
+        // Expected as `Balance::expected` has it: the drifted reference, no brighter than 255.
+        let gq = self.node("Mul", "whole.gate.drifted", &[gains, &q], vec![]);
+        let top = self.scalar("whole.level.max", 255.0);
+        let gq = self.node("Min", "whole.gate.expected", &[&gq, &top], vec![]);
         let d = self.node("Sub", "whole.gate.diff", &[raw, &gq], vec![]);
         let d = self.node("Abs", "whole.gate.absdiff", &[&d], vec![]);
         let axis = self.ints("whole.axes.0", &[1], &[0]);
