@@ -149,14 +149,16 @@ pub fn run(args: Args) -> Result<()> {
         .map(|f| Balance::fit(&f.image, &reference, &mask).gain.iter().fold(0f32, |m, g| m.max((g - 1.0).abs())))
         .collect();
     moved.sort_by(f32::total_cmp);
-    println!(
-        "a contact alone moves the balance's fit (largest channel's |gain - 1| on {} undrifted press frames): median {:.4}, \
-         90th percentile {:.4}, largest {:.4}",
-        moved.len(),
-        moved[moved.len() / 2],
-        moved[moved.len() * 9 / 10],
-        moved[moved.len() - 1]
-    );
+    // A timeline too short for a press has nothing to say here.
+    if let Some(&largest) = moved.last() {
+        println!(
+            "a contact alone moves the balance's fit (largest channel's |gain - 1| on {} undrifted press frames): \
+             median {:.4}, 90th percentile {:.4}, largest {largest:.4}",
+            moved.len(),
+            moved[moved.len() / 2],
+            moved[moved.len() * 9 / 10],
+        );
+    }
     println!();
     println!(
         "| drift | arm | untouched gated | untouched with false contact | contact L1 mm | x undrifted | reference updates |"
