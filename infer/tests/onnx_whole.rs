@@ -70,6 +70,9 @@ fn check(config: DenseDepthConfig, edit: impl FnOnce(DenseDepth) -> DenseDepth, 
         // Bright enough that the LEDs' spots clip at 255 (the balance lifts them to the reference).
         ("drifted until it clips", drifted(&frame, [1.45, 1.4, 1.5])),
         ("untouched, drifted", drifted(&untouched, [0.95, 1.04, 1.02])),
+        // A camera far darker: the gate compares in the reference's colours, its noise scaled up.
+        ("pressed, darker", drifted(&frame, [0.72, 0.75, 0.7])),
+        ("untouched, darker", drifted(&untouched, [0.72, 0.75, 0.7])),
         ("untouched", untouched.clone()),
         // Every level clipped: no channel keeps enough samples for a fit, so none is undone.
         ("saturated", RgbImage::from_pixel(untouched.width(), untouched.height(), image::Rgb([255; 3]))),

@@ -66,6 +66,8 @@ struct Tally {
     gated: usize,
     false_contact_frames: usize,
     contact_l1_mm: Vec<f64>,
+    /// Press frames the gate kept shut (their depth read as zero).
+    presses_shut: usize,
     updates: u64,
 }
 
@@ -161,9 +163,9 @@ pub fn run(args: Args) -> Result<()> {
     }
     println!();
     println!(
-        "| drift | arm | untouched gated | untouched with false contact | contact L1 mm | x undrifted | reference updates |"
+        "| drift | arm | untouched gated | untouched with false contact | presses gated shut | contact L1 mm | x undrifted | reference updates |"
     );
-    println!("|---|---|---:|---:|---:|---:|---:|");
+    println!("|---|---|---:|---:|---:|---:|---:|---:|");
     let undrifted = measure(&predictor, &frames, &mask, [1.0; 3], 0.0, false, Arm::Undrifted)?;
     let base_l1 = mean(&undrifted.contact_l1_mm);
     print_row("none", "fixed reference", &undrifted, base_l1);
@@ -174,7 +176,12 @@ pub fn run(args: Args) -> Result<()> {
         let mut rng = SplitMix64::for_item(0xd41f7, d % args.drifts);
         let global = rng.range(0.9, 1.1);
         let gain: [f64; 3] = std::array::from_fn(|_| global * rng.range(0.95, 1.05));
-        let slow = if uneven { "0 to 1 %/min left to right" } else { "1 %/min" };
+        let per_minute_pct = 100.0 * args.per_minute;
+        let slow = if uneven {
+            format!("0 to {per_minute_pct} %/min left to right")
+        } else {
+            format!("{per_minute_pct} %/min")
+        };
         let name = format!("x{:.3}/{:.3}/{:.3}, {slow}", gain[0], gain[1], gain[2]);
         for (arm, what) in [
             (Arm::FixedComparison, "before: fixed comparison, drifted input"),
@@ -195,11 +202,13 @@ fn mean(v: &[f64]) -> f64 {
 fn print_row(drift: &str, arm: &str, t: &Tally, base_l1: f64) {
     let l1 = mean(&t.contact_l1_mm);
     println!(
-        "| {drift} | {arm} | {}/{} ({:.1} %) | {} | {l1:.4} | {:.3} | {} |",
+        "| {drift} | {arm} | {}/{} ({:.1} %) | {} | {}/{} | {l1:.4} | {:.3} | {} |",
         t.gated,
         t.untouched,
         100.0 * t.gated as f64 / t.untouched.max(1) as f64,
         t.false_contact_frames,
+        t.presses_shut,
+        t.contact_l1_mm.len(),
         l1 / base_l1,
         t.updates
     );
@@ -220,12 +229,12 @@ fn drifted(img: &RgbImage, gain: [f64; 3], slope: f64) -> RgbImage {
 
 /// The gate's decision as it was before the balance: frame against reference as they are.
 fn opens_unbalanced(img: &RgbImage, reference: &RgbImage, mask: &[bool], gate: &sensor::gate::ContactGate) -> bool {
-    let limit = gate.grey_levels * 3.0;
+    let (limit, comparison) = (gate.grey_levels * 3.0, Balance::NONE.comparison());
     let changed = img
         .pixels()
         .zip(reference.pixels())
         .zip(mask)
-        .filter(|((p, q), m)| **m && Balance::NONE.difference(p.0, q.0) > limit)
+        .filter(|((p, q), m)| **m && comparison.difference(p.0, q.0) > limit)
         .count();
     changed >= gate.min_pixels
 }
@@ -269,9 +278,12 @@ fn measure(
         };
         let contact_px = depth.contact_px(CONTACT_THRESHOLD_MM).iter().filter(|&&c| c).count();
         match &f.truth_mm {
-            Some(truth) => tally
-                .contact_l1_mm
-                .push(ImageErrors::of(0, formats::Split::Test, &depth.depth_mm, truth, mask).contact_l1_mm),
+            Some(truth) => {
+                tally.presses_shut += usize::from(!open);
+                tally
+                    .contact_l1_mm
+                    .push(ImageErrors::of(0, formats::Split::Test, &depth.depth_mm, truth, mask).contact_l1_mm)
+            }
             None => {
                 tally.untouched += 1;
                 tally.gated += usize::from(!open);

@@ -50,8 +50,12 @@ pub struct WholePredictor<'a> {
 struct Balanced {
     /// `[3, crop, crop]` float grey levels.
     planes: String,
-    /// `[3, 1, 1]` gains.
+    /// `[3, 1, 1]` the fitted gains and their inverses (1 where a channel keeps no gain), for
+    /// the gate.
     gains: String,
+    inverse: String,
+    /// `[3, crop, crop]` bool: the frame's levels the camera clipped at 255.
+    clipped: String,
 }
 
 /// The ONNX model of the whole predictor; see the module's description.
@@ -76,7 +80,7 @@ pub fn export_whole(p: &WholePredictor) -> Result<Vec<u8>, OnnxError> {
     let raw = g.cast("whole.planes", &levels, FLOAT);
     let balanced = p.reference.map(|reference| g.balance(&raw, reference, &mask));
     let gate = match (p.reference, &balanced, &file.contact_gate) {
-        (Some(reference), Some(b), Some(record)) => Some(g.gate(&raw, &b.gains, reference, &mask, record.gate)),
+        (Some(reference), Some(b), Some(record)) => Some(g.gate(&raw, b, reference, &mask, record.gate)),
         _ => None,
     };
     let planes = balanced.map_or(raw, |b| b.planes);
@@ -477,6 +481,9 @@ impl Graph {
         // rounded halves up and kept in range.
         let refs: Vec<&str> = undo_bins.iter().map(|s| s.as_str()).collect();
         let undo_bins = self.node("Concat", "whole.balance.undo_bins3", &refs, vec![attr_int("axis", 0)]);
+        // The gate undoes the fitted drift whether or not the input does, as `Balance::comparison`.
+        let fitted = self.node("Gather", "whole.balance.fitted_inverse3", &[&inverses, &undo_bins], vec![]);
+        let fitted = self.reshape("whole.balance.fitted_inverse", &fitted, &[3, 1, 1]);
         let undo_bins = self.node("Where", "whole.balance.undo_bins_used", &[&none, &no_gain, &undo_bins], vec![]);
         let inverse = self.node("Gather", "whole.balance.inverse3", &[&inverses, &undo_bins], vec![]);
         let inverse = self.reshape("whole.balance.inverse", &inverse, &[3, 1, 1]);
@@ -488,20 +495,33 @@ impl Graph {
         let top = self.scalar("whole.level.max", 255.0);
         let clipped = self.node("GreaterOrEqual", "whole.balance.clipped", &[raw, &top], vec![]);
         let planes = self.node("Where", "whole.balance.planes", &[&clipped, &lifted, &planes], vec![]);
-        Balanced { planes, gains }
+        Balanced { planes, gains, inverse: fitted, clipped }
     }
 
     /// Whether the frame differs from the reference by more than the unit's noise (the contact
     /// gate, `ContactGate::differs`): a bool scalar.
-    /// `raw` is the frame's planes as they came, `gains` the balance's.
-    fn gate(&mut self, raw: &str, gains: &str, reference: &RgbImage, mask: &[bool], gate: ContactGate) -> String {
+    /// `raw` is the frame's planes as they came, `balanced` the balance's fit of them.
+    fn gate(
+        &mut self,
+        raw: &str,
+        balanced: &Balanced,
+        reference: &RgbImage,
+        mask: &[bool],
+        gate: ContactGate,
+    ) -> String {
         let n = reference.width() as i64;
         let q = self.reference_planes(reference);
-        // Expected as `Balance::expected` has it: the drifted reference, no brighter than 255.
-        let gq = self.node("Mul", "whole.gate.drifted", &[gains, &q], vec![]);
-        let top = self.scalar("whole.level.max", 255.0);
-        let gq = self.node("Min", "whole.gate.expected", &[&gq, &top], vec![]);
-        let d = self.node("Sub", "whole.gate.diff", &[raw, &gq], vec![]);
+        // As `Comparison::difference` compares: frame and reference brought to the brighter
+        // exposure (the frame times the inverse gain where that is above 1, the reference times
+        // the gain where that is), a clipped level lifted to the reference where that is brighter.
+        let one = self.scalar("whole.one", 1.0);
+        let a = self.node("Max", "whole.gate.frame_scale", &[&balanced.inverse, &one], vec![]);
+        let b = self.node("Max", "whole.gate.reference_scale", &[&balanced.gains, &one], vec![]);
+        let level = self.node("Mul", "whole.gate.frame", &[raw, &a], vec![]);
+        let q = self.node("Mul", "whole.gate.reference", &[&q, &b], vec![]);
+        let lifted = self.node("Max", "whole.gate.lifted", &[&level, &q], vec![]);
+        let level = self.node("Where", "whole.gate.levels", &[&balanced.clipped, &lifted, &level], vec![]);
+        let d = self.node("Sub", "whole.gate.diff", &[&level, &q], vec![]);
         let d = self.node("Abs", "whole.gate.absdiff", &[&d], vec![]);
         let axis = self.ints("whole.axes.0", &[1], &[0]);
         let mut channels = Vec::new();
