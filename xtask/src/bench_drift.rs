@@ -8,7 +8,8 @@
 //! gate's fixed comparison, drifted colours into the network); drifted with the balanced gate
 //! and input and the bundle's reference (`--fixed-reference`); the same with a reference
 //! that follows the untouched frames (`infer stream`'s default). Each gives the untouched frames gated, those
-//! with a false contact pixel, and the contact L1 of the press frames.
+//! with a false contact pixel, the press frames the gate kept shut, and the contact L1 of the
+//! press frames. `--per-minute` below zero drifts the camera darker.
 
 use std::path::PathBuf;
 use std::time::Instant;
